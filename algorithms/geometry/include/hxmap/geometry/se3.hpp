@@ -1,0 +1,33 @@
+// SE(3) helpers. Tangent vectors are ordered (omega, v): rotation first.
+// Updates are left-multiplied: T <- exp(xi) * T.
+#pragma once
+
+#include <Eigen/Geometry>
+
+namespace hxmap::alg {
+
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+Eigen::Matrix3d skew(const Eigen::Vector3d& w);
+
+/// Rotation from an axis-angle vector (Rodrigues).
+Eigen::Matrix3d expSO3(const Eigen::Vector3d& omega);
+Eigen::Vector3d logSO3(const Eigen::Matrix3d& R);
+
+/// Exponential and logarithm of SE(3) with the full left Jacobian.
+Eigen::Isometry3d expSE3(const Vector6d& xi);
+Vector6d logSE3(const Eigen::Isometry3d& T);
+
+/// Rotation angle of T in radians and translation length in meters.
+double rotationAngle(const Eigen::Isometry3d& T);
+double translationNorm(const Eigen::Isometry3d& T);
+
+/// True when T's linear part is a proper rotation (orthonormal, det +1) within
+/// `tolerance` and every entry is finite.
+bool isRigid(const Eigen::Matrix4d& T, double tolerance = 1e-4);
+
+/// Spherical interpolation between two poses, t in [0, 1].
+Eigen::Isometry3d interpolate(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, double t);
+
+}  // namespace hxmap::alg

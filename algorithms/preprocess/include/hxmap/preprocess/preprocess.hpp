@@ -1,0 +1,60 @@
+// Frame preprocessing for tracking and fusion: depth in meters (invalid = 0,
+// NaN/inf/negative and out-of-range values removed), edge-preserving denoise,
+// vertex and normal maps over a pyramid, per-pixel confidence, and intensity
+// normalized to [0, 1] for photometric terms. Pure function of its inputs.
+#pragma once
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "hxmap/core/frame.hpp"
+#include "hxmap/geometry/camera.hpp"
+#include "hxmap/preprocess/params.hpp"
+
+namespace hxmap::alg {
+
+/// One pyramid level, camera frame. Invalid pixels have depth 0, vertex z 0
+/// and a zero normal.
+struct FrameLevel {
+  PinholeCamera camera;
+  cv::Mat depth;       ///< CV_32F meters (denoised)
+  cv::Mat vertex;      ///< CV_32FC3 camera-frame points
+  cv::Mat normal;      ///< CV_32FC3 unit normals facing the camera, or 0
+  cv::Mat confidence;  ///< CV_32F in [0, 1]
+  cv::Mat intensity;   ///< CV_32F in [0, 1]
+  cv::Mat grad_x, grad_y;  ///< CV_32F intensity gradients per pixel (central differences)
+};
+
+struct PreprocessedFrame {
+  int64_t stamp_ns = 0;
+  uint64_t seq = 0;
+  cv::Mat depth_m;     ///< CV_32F, range-gated raw depth (what is fused)
+  cv::Mat rgb;         ///< CV_8UC3
+  cv::Mat intensity;   ///< CV_32F in [0, 1]
+  std::vector<FrameLevel> levels;  ///< levels[0] is full resolution
+  int valid_pixels = 0;            ///< valid depth pixels at level 0
+  int rejected_pixels = 0;         ///< non-finite, negative or out-of-range depth removed
+};
+
+/// sigma(z) of the sensor noise model in meters.
+inline float depthSigma(float z_m, const PreprocessParams& p) {
+  const float d = z_m - 0.4f;
+  return static_cast<float>(p.noise_sigma_a_m) + static_cast<float>(p.noise_sigma_b_per_m) * d * d;
+}
+
+/// frame.depth must be CV_32FC1 and frame.rgb CV_8UC3, both camera-sized;
+/// anything else gives a frame with no valid pixels (the caller reports it).
+PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params);
+
+/// Camera-frame normals from a vertex map (central differences); pixels whose
+/// neighbours are invalid or jump by more than `max_jump(z)` get 0.
+cv::Mat computeNormals(const cv::Mat& vertex, const PreprocessParams& params);
+
+/// Half-resolution depth: per 2x2 block, the mean of the valid values close to
+/// the block's nearest one (does not blend foreground with background).
+cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& params);
+
+cv::Mat vertexMap(const cv::Mat& depth, const PinholeCamera& camera);
+
+}  // namespace hxmap::alg

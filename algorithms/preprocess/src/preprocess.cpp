@@ -1,0 +1,226 @@
+#include "hxmap/preprocess/preprocess.hpp"
+
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+namespace hxmap::alg {
+
+namespace {
+
+cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p) {
+  const int r = p.bilateral_radius_px;
+  if (r <= 0) return depth.clone();
+  cv::Mat out(depth.size(), CV_32F, cv::Scalar(0));
+  std::vector<float> spatial((2 * r + 1) * (2 * r + 1));
+  for (int dy = -r; dy <= r; ++dy) {
+    for (int dx = -r; dx <= r; ++dx) {
+      spatial[(dy + r) * (2 * r + 1) + dx + r] =
+          std::exp(-static_cast<float>(dx * dx + dy * dy) / static_cast<float>(2 * p.bilateral_sigma_px * p.bilateral_sigma_px));
+    }
+  }
+  const float k = static_cast<float>(p.bilateral_sigma_depth_factor);
+  for (int v = 0; v < depth.rows; ++v) {
+    const float* row = depth.ptr<float>(v);
+    float* orow = out.ptr<float>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      const float z = row[u];
+      if (z <= 0) continue;
+      const float sr = k * depthSigma(z, p);
+      const float inv2 = 1.0f / (2 * sr * sr);
+      float sum = 0, wsum = 0;
+      for (int dy = -r; dy <= r; ++dy) {
+        const int vv = v + dy;
+        if (vv < 0 || vv >= depth.rows) continue;
+        const float* nrow = depth.ptr<float>(vv);
+        for (int dx = -r; dx <= r; ++dx) {
+          const int uu = u + dx;
+          if (uu < 0 || uu >= depth.cols) continue;
+          const float zn = nrow[uu];
+          if (zn <= 0) continue;
+          const float dz = zn - z;
+          if (dz * dz > 9 * sr * sr) continue;  // beyond 3 sigma: another surface
+          const float w = spatial[(dy + r) * (2 * r + 1) + dx + r] * std::exp(-dz * dz * inv2);
+          sum += w * zn;
+          wsum += w;
+        }
+      }
+      orow[u] = sum / wsum;
+    }
+  }
+  return out;
+}
+
+// Confidence from the noise model, incidence angle and distance to depth
+// discontinuities (invalid pixels count as discontinuities).
+cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat& normal, const PreprocessParams& p) {
+  cv::Mat not_edge(depth.size(), CV_8U, cv::Scalar(255));
+  for (int v = 0; v < depth.rows; ++v) {
+    const float* row = depth.ptr<float>(v);
+    uint8_t* e = not_edge.ptr<uint8_t>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      const float z = row[u];
+      if (z <= 0) {
+        e[u] = 0;
+        continue;
+      }
+      const float jump = static_cast<float>(p.edge_jump_sigmas) * depthSigma(z, p);
+      if (u + 1 < depth.cols && row[u + 1] > 0 && std::abs(row[u + 1] - z) > jump) e[u] = 0;
+      if (v + 1 < depth.rows) {
+        const float zb = depth.ptr<float>(v + 1)[u];
+        if (zb > 0 && std::abs(zb - z) > jump) e[u] = 0;
+      }
+    }
+  }
+  cv::Mat dist;
+  cv::distanceTransform(not_edge, dist, cv::DIST_L2, 3);
+  const float sigma_ref = depthSigma(1.0f, p);
+  const float cos_min = static_cast<float>(std::cos(p.max_incidence_deg * M_PI / 180.0));
+  const float edge_d = static_cast<float>(p.edge_confidence_distance_px);
+  cv::Mat conf(depth.size(), CV_32F, cv::Scalar(0));
+  for (int v = 0; v < depth.rows; ++v) {
+    const float* row = depth.ptr<float>(v);
+    const float* drow = dist.ptr<float>(v);
+    const auto* vrow = vertex.ptr<cv::Vec3f>(v);
+    const auto* nrow = normal.ptr<cv::Vec3f>(v);
+    float* crow = conf.ptr<float>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      const float z = row[u];
+      if (z <= 0) continue;
+      const float c_noise = std::min(1.0f, sigma_ref / depthSigma(z, p));
+      float c_angle = 0.5f;  // unknown normal (next to an edge)
+      const cv::Vec3f& n = nrow[u];
+      if (n[0] != 0 || n[1] != 0 || n[2] != 0) {
+        const cv::Vec3f& x = vrow[u];
+        const float cosi = -(n.dot(x)) / std::sqrt(x.dot(x));
+        c_angle = cosi <= cos_min ? 0.0f : cosi;
+      }
+      const float c_edge = edge_d > 0 ? std::min(1.0f, drow[u] / edge_d) : 1.0f;
+      crow[u] = c_noise * c_angle * c_edge;
+    }
+  }
+  return conf;
+}
+
+}  // namespace
+
+cv::Mat vertexMap(const cv::Mat& depth, const PinholeCamera& c) {
+  cv::Mat vertex(depth.size(), CV_32FC3, cv::Scalar(0, 0, 0));
+  for (int v = 0; v < depth.rows; ++v) {
+    const float* row = depth.ptr<float>(v);
+    auto* out = vertex.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      const float z = row[u];
+      if (z <= 0) continue;
+      const Eigen::Vector3f p = c.backproject(static_cast<float>(u), static_cast<float>(v), z);
+      out[u] = cv::Vec3f(p.x(), p.y(), p.z());
+    }
+  }
+  return vertex;
+}
+
+cv::Mat computeNormals(const cv::Mat& vertex, const PreprocessParams& p) {
+  cv::Mat normal(vertex.size(), CV_32FC3, cv::Scalar(0, 0, 0));
+  for (int v = 1; v + 1 < vertex.rows; ++v) {
+    const auto* up = vertex.ptr<cv::Vec3f>(v - 1);
+    const auto* mid = vertex.ptr<cv::Vec3f>(v);
+    const auto* down = vertex.ptr<cv::Vec3f>(v + 1);
+    auto* out = normal.ptr<cv::Vec3f>(v);
+    for (int u = 1; u + 1 < vertex.cols; ++u) {
+      const cv::Vec3f& c = mid[u];
+      const cv::Vec3f &l = mid[u - 1], &r = mid[u + 1], &t = up[u], &b = down[u];
+      if (c[2] <= 0 || l[2] <= 0 || r[2] <= 0 || t[2] <= 0 || b[2] <= 0) continue;
+      const float jump = 2.0f * static_cast<float>(p.edge_jump_sigmas) * depthSigma(c[2], p);
+      if (std::abs(l[2] - r[2]) > jump || std::abs(t[2] - b[2]) > jump) continue;
+      cv::Vec3f n = (r - l).cross(b - t);
+      const float len = std::sqrt(n.dot(n));
+      if (!(len > 0)) continue;
+      n *= 1.0f / len;
+      if (n.dot(c) > 0) n = -n;  // face the camera
+      out[u] = n;
+    }
+  }
+  return normal;
+}
+
+cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& p) {
+  cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F, cv::Scalar(0));
+  for (int v = 0; v < out.rows; ++v) {
+    const float* r0 = depth.ptr<float>(2 * v);
+    const float* r1 = depth.ptr<float>(2 * v + 1);
+    float* o = out.ptr<float>(v);
+    for (int u = 0; u < out.cols; ++u) {
+      const float z[4] = {r0[2 * u], r0[2 * u + 1], r1[2 * u], r1[2 * u + 1]};
+      float zmin = 1e9f;
+      for (float x : z) {
+        if (x > 0) zmin = std::min(zmin, x);
+      }
+      if (zmin >= 1e9f) continue;
+      const float jump = 3.0f * depthSigma(zmin, p);
+      float sum = 0;
+      int n = 0;
+      for (float x : z) {
+        if (x > 0 && x - zmin <= jump) {
+          sum += x;
+          ++n;
+        }
+      }
+      o[u] = sum / static_cast<float>(n);
+    }
+  }
+  return out;
+}
+
+PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params) {
+  PreprocessedFrame out;
+  out.stamp_ns = frame.stamp_ns;
+  out.seq = frame.seq;
+  const cv::Size size(camera.width, camera.height);
+  const bool depth_ok = frame.depth.type() == CV_32FC1 && frame.depth.size() == size;
+  const bool rgb_ok = frame.rgb.type() == CV_8UC3 && frame.rgb.size() == size;
+  out.depth_m = cv::Mat(size, CV_32F, cv::Scalar(0));
+  out.rgb = rgb_ok ? frame.rgb : cv::Mat(size, CV_8UC3, cv::Scalar(0, 0, 0));
+  if (depth_ok) {
+    const float lo = static_cast<float>(params.min_depth_m), hi = static_cast<float>(params.max_depth_m);
+    for (int v = 0; v < size.height; ++v) {
+      const float* in = frame.depth.ptr<float>(v);
+      float* o = out.depth_m.ptr<float>(v);
+      for (int u = 0; u < size.width; ++u) {
+        const float z = in[u];
+        if (std::isfinite(z) && z >= lo && z <= hi) {
+          o[u] = z;
+          ++out.valid_pixels;
+        } else if (z != 0.0f) {
+          ++out.rejected_pixels;
+        }
+      }
+    }
+  }
+  cv::Mat gray;
+  cv::cvtColor(out.rgb, gray, cv::COLOR_RGB2GRAY);
+  gray.convertTo(out.intensity, CV_32F, 1.0 / 255.0);
+
+  const int levels = std::clamp(params.pyramid_levels, 1, 5);
+  cv::Mat depth = bilateralDepth(out.depth_m, params);
+  cv::Mat intensity = out.intensity;
+  for (int l = 0; l < levels; ++l) {
+    FrameLevel L;
+    L.camera = camera.level(l);
+    if (l > 0) {
+      depth = downsampleDepth(depth, params);
+      cv::resize(intensity, intensity, depth.size(), 0, 0, cv::INTER_AREA);
+    }
+    L.intensity = intensity;
+    // Central differences (half the Sobel scale keeps units of intensity per pixel).
+    cv::Sobel(intensity, L.grad_x, CV_32F, 1, 0, 3, 1.0 / 8.0);
+    cv::Sobel(intensity, L.grad_y, CV_32F, 0, 1, 3, 1.0 / 8.0);
+    L.depth = depth;
+    L.vertex = vertexMap(depth, L.camera);
+    L.normal = computeNormals(L.vertex, params);
+    L.confidence = confidenceMap(depth, L.vertex, L.normal, params);
+    out.levels.push_back(std::move(L));
+  }
+  return out;
+}
+
+}  // namespace hxmap::alg

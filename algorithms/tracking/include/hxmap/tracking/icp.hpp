@@ -1,0 +1,55 @@
+// Frame-to-model point-to-plane ICP (paper eq 1):
+//   E(T) = sum_{(p,q,n)} w(p) rho(n^T (T p - q))
+// with projective association into the model view, distance gate tau_d,
+// normal-angle gate tau_n, Huber loss rho, confidence weights w(p), and
+// Gauss-Newton coarse to fine over the frame's pyramid. Failure (too few
+// inliers, large residual, degenerate normal equations, implausible motion)
+// is reported, never hidden: the caller keeps the map unchanged then.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "hxmap/geometry/se3.hpp"
+#include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/tracking/params.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+
+namespace hxmap::alg {
+
+struct IcpResult {
+  bool ok = false;
+  std::string failure;  ///< why tracking failed, empty when ok
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  int inliers = 0;
+  int model_pixels = 0;  ///< valid model pixels at level 0
+  double rms_residual_m = 0;
+  double min_eigen_ratio = 0;
+  int iterations = 0;
+  Matrix6d information = Matrix6d::Zero();  ///< J^T W J at the solution (level 0)
+};
+
+/// The previous frame and its pose, for the photometric term. Point-to-plane
+/// residuals leave some motions weakly observed (a camera yawing over a floor,
+/// a table and a frontal wall changes them only to second order); intensity
+/// edges observe them directly, as in ElasticFusion's joint cost.
+struct PhotometricReference {
+  const PreprocessedFrame* frame = nullptr;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
+/// `model[l]` is the model rendered at the reference pose for pyramid level l
+/// (model.size() <= frame.levels.size()). T_init is the initial guess. With a
+/// reference (and photometric_scale_m > 0) photometric residuals join the
+/// point-to-plane ones in each Gauss-Newton step.
+IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<ModelView>& model,
+                            const Eigen::Isometry3d& T_init, const TrackingParams& params,
+                            const PhotometricReference& reference = {});
+
+/// Keyframe test: motion or time since the last keyframe above thresholds.
+bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
+                   int64_t now_ns, const TrackingParams& params);
+
+}  // namespace hxmap::alg

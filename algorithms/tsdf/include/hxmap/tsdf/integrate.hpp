@@ -1,0 +1,44 @@
+// Confidence-weighted projective TSDF fusion (paper 3.1): each voxel of the
+// blocks in the truncation band is projected into the depth image; the
+// projective signed distance d = depth(u, v) - z is truncated to mu and fused
+// with the pixel's confidence as weight (capped at max_weight), with color
+// and running update statistics.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "hxmap/core/parallel.hpp"
+#include "hxmap/geometry/camera.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::alg {
+
+/// Inputs of one integration. depth_m CV_32F (0 = invalid), rgb CV_8UC3 or
+/// empty, confidence CV_32F in [0, 1] or empty (then 1 everywhere).
+struct DepthObservation {
+  cv::Mat depth_m;
+  cv::Mat rgb;
+  cv::Mat confidence;
+  PinholeCamera camera;
+  Eigen::Isometry3f T_world_cam = Eigen::Isometry3f::Identity();
+};
+
+struct IntegrationStats {
+  size_t blocks_in_band = 0;   ///< blocks the observation touched
+  size_t blocks_allocated = 0; ///< newly allocated by it
+  size_t voxels_updated = 0;
+};
+
+/// Blocks whose voxels the observation can update; allocates missing ones.
+std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, size_t* newly_allocated = nullptr);
+
+/// The optimized kernel (incremental transforms per block row, parallel over
+/// blocks).
+IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel = serialFor);
+
+/// Plain reference: the same rule written directly (double math, one voxel at
+/// a time), used to test the optimized kernel.
+IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs);
+
+}  // namespace hxmap::alg

@@ -1,0 +1,103 @@
+// Voxel-hashed TSDF: blocks of 8^3 voxels, allocated only in the truncation
+// band of observed depth, found through an open-addressing hash of block
+// coordinates. Voxel (i, j, k) has its center at ((i, j, k) + 0.5) * voxel_size
+// in the world frame.
+//
+// Thread safety: not synchronized. One writer (the frontend) mutates the map;
+// readers work on their own copy (see copyBlocks) or run between writes.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "hxmap/tsdf/params.hpp"
+
+namespace hxmap::alg {
+
+constexpr int kBlockSide = 8;
+constexpr int kBlockVoxels = kBlockSide * kBlockSide * kBlockSide;
+
+/// One voxel: fused signed distance and weight, fused color, and running
+/// statistics (Welford) of the truncated SDF observations it received, from
+/// which the UF quality indicator takes sigma_TSDF.
+struct Voxel {
+  float sdf_m = 0.0f;
+  float weight = 0.0f;
+  uint8_t r = 0, g = 0, b = 0, flags = 0;
+  uint32_t updates = 0;
+  float update_mean_m = 0.0f;
+  float update_m2 = 0.0f;  ///< sum of squared deviations, m^2
+
+  float updateVariance() const { return updates > 1 ? update_m2 / static_cast<float>(updates - 1) : 0.0f; }
+};
+
+struct VoxelBlock {
+  Voxel voxels[kBlockVoxels];
+  static int index(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
+};
+
+using BlockKey = Eigen::Vector3i;
+
+/// Memory in use, for reports.
+struct MapMemory {
+  size_t blocks = 0;
+  size_t bytes = 0;  ///< voxel storage + hash table
+};
+
+class TsdfMap {
+ public:
+  explicit TsdfMap(const TsdfParams& params);
+
+  const TsdfParams& params() const { return params_; }
+  float voxelSize() const { return voxel_size_; }
+  float blockSize() const { return voxel_size_ * kBlockSide; }
+  float truncation() const { return truncation_; }
+
+  size_t blockCount() const { return keys_.size(); }
+  const BlockKey& key(size_t block_index) const { return keys_[block_index]; }
+  VoxelBlock& block(size_t block_index) { return blocks_[block_index]; }
+  const VoxelBlock& block(size_t block_index) const { return blocks_[block_index]; }
+
+  /// Index of the block, or -1 when not allocated.
+  int32_t find(const BlockKey& key) const;
+  /// Index of the block, allocating it (voxels zero-weight) when missing.
+  /// May move blocks in memory: do not hold references across calls.
+  int32_t findOrAllocate(const BlockKey& key);
+
+  BlockKey blockOf(const Eigen::Vector3f& p_world) const;
+  /// Global voxel coordinates of the voxel containing p.
+  Eigen::Vector3i voxelOf(const Eigen::Vector3f& p_world) const;
+  Eigen::Vector3f voxelCenter(const Eigen::Vector3i& voxel) const {
+    return (voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * voxel_size_;
+  }
+  /// Voxel by global coordinates, or nullptr when its block is not allocated.
+  const Voxel* voxel(const Eigen::Vector3i& global) const;
+
+  /// Trilinear SDF at p from the 8 surrounding voxel centers; false when any
+  /// of them is unallocated or has weight < min_weight.
+  bool sample(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m) const;
+  bool sampleColor(const Eigen::Vector3f& p_world, Eigen::Vector3f& rgb) const;
+
+  MapMemory memory() const;
+  void clear();
+
+ private:
+  static uint64_t pack(const BlockKey& k) {
+    return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
+           static_cast<uint64_t>(k.z() + (1 << 20));
+  }
+  void rehash(size_t capacity);
+
+  TsdfParams params_;
+  float voxel_size_, truncation_;
+  std::vector<VoxelBlock> blocks_;
+  std::vector<BlockKey> keys_;
+  std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot
+  std::vector<int32_t> table_values_;
+};
+
+inline int floorDiv(int a, int b) { return (a >= 0) ? a / b : -((-a + b - 1) / b); }
+
+}  // namespace hxmap::alg

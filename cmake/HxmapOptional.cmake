@@ -1,0 +1,54 @@
+# Optional parts. Each defaults ON when its package is found; the summary at
+# the end of configuration says what was built and what was left out and why.
+find_package(PkgConfig QUIET)
+set(HXMAP_SUMMARY_LINES "")
+
+macro(hxmap_optional var description found reason)
+  if(${found})
+    option(${var} "${description}" ON)
+  else()
+    option(${var} "${description}" OFF)
+  endif()
+  if(${var} AND NOT ${found})
+    message(FATAL_ERROR "${var}=ON but ${reason}")
+  endif()
+  if(${var})
+    list(APPEND HXMAP_SUMMARY_LINES "  [x] ${description}")
+  elseif(${found})
+    list(APPEND HXMAP_SUMMARY_LINES "  [ ] ${description}: turned off by ${var}=OFF")
+  else()
+    list(APPEND HXMAP_SUMMARY_LINES "  [ ] ${description}: left out, ${reason}")
+  endif()
+endmacro()
+
+set(_v4l2_found FALSE)
+if(PkgConfig_FOUND)
+  pkg_check_modules(LIBV4L2 QUIET IMPORTED_TARGET libv4l2)
+  pkg_check_modules(LIBCAMERA QUIET IMPORTED_TARGET libcamera)
+  pkg_check_modules(OPENNI2 QUIET IMPORTED_TARGET libopenni2)
+endif()
+hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver" LIBV4L2_FOUND
+  "libv4l2 not found (apt install libv4l-dev)")
+hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver" OPENNI2_FOUND
+  "OpenNI2 not found (apt install libopenni2-dev)")
+hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver" LIBCAMERA_FOUND
+  "libcamera not found (apt install libcamera-dev)")
+find_package(CycloneDDS QUIET)
+hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing" CycloneDDS_FOUND
+  "CycloneDDS not found (apt install cyclonedds-dev cyclonedds-tools)")
+find_package(TBB QUIET)
+hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
+  "TBB not found (apt install libtbb-dev)")
+find_package(benchmark QUIET)
+find_package(Open3D QUIET)
+hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D peer in benchmarks" Open3D_FOUND
+  "Open3D not found (apt install libopen3d-dev)")
+
+function(hxmap_print_summary)
+  message(STATUS "hxmap ${PROJECT_VERSION}: build type ${CMAKE_BUILD_TYPE}, generator ${CMAKE_GENERATOR}, "
+                 "ccache ${HXMAP_CCACHE}")
+  message(STATUS "hxmap optional parts:")
+  foreach(l ${HXMAP_SUMMARY_LINES})
+    message(STATUS "${l}")
+  endforeach()
+endfunction()

@@ -1,0 +1,28 @@
+# Compiler flags shared by every hxmap target, via the interface target
+# hxmap_flags (linked privately by each module).
+add_library(hxmap_flags INTERFACE)
+target_compile_options(hxmap_flags INTERFACE -Wall -Wextra -Wpedantic)
+if(HXMAP_WERROR)
+  target_compile_options(hxmap_flags INTERFACE -Werror)
+endif()
+if(HXMAP_NATIVE)
+  target_compile_options(hxmap_flags INTERFACE -march=native)
+endif()
+if(HXMAP_SANITIZE)
+  string(REPLACE ";" "," _san "${HXMAP_SANITIZE}")
+  # Applied globally so that every object (and GoogleTest's main) agrees.
+  add_compile_options(-fsanitize=${_san} -fno-omit-frame-pointer -fno-sanitize-recover=undefined)
+  add_link_options(-fsanitize=${_san})
+  message(STATUS "hxmap: sanitizers: ${_san}")
+endif()
+
+# hxmap_module(NAME DEPS...): a static library algorithms/<name> with a public
+# include/ folder and sources in src/.
+function(hxmap_module name)
+  cmake_parse_arguments(M "" "" "DEPS;PRIVATE_DEPS" ${ARGN})
+  file(GLOB _src CONFIGURE_DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/src/*.cpp)
+  add_library(hxmap_${name} STATIC ${_src})
+  add_library(hxmap::${name} ALIAS hxmap_${name})
+  target_include_directories(hxmap_${name} PUBLIC ${CMAKE_CURRENT_SOURCE_DIR}/include)
+  target_link_libraries(hxmap_${name} PUBLIC ${M_DEPS} PRIVATE hxmap_flags ${M_PRIVATE_DEPS})
+endfunction()

@@ -1,0 +1,344 @@
+#include "hxmap/dataset/dataset.hpp"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <yaml-cpp/yaml.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "hxmap/dataset/parsers.hpp"
+#include "hxmap/eval/trajectory_metrics.hpp"
+
+namespace fs = std::filesystem;
+
+namespace hxmap::drv {
+
+alg::PinholeCamera tumCameraPreset(int freiburg) {
+  alg::PinholeCamera c;
+  c.width = 640;
+  c.height = 480;
+  switch (freiburg) {
+    case 1:
+      c.fx = 517.3, c.fy = 516.5, c.cx = 318.6, c.cy = 255.3;
+      c.distortion = {0.2624, -0.9531, -0.0054, 0.0026, 1.1633};
+      break;
+    case 2:
+      c.fx = 520.9, c.fy = 521.0, c.cx = 325.1, c.cy = 249.7;
+      c.distortion = {0.2312, -0.7849, -0.0033, -0.0001, 0.9172};
+      break;
+    default:  // fr3 images are already undistorted
+      c.fx = 535.4, c.fy = 539.2, c.cx = 320.1, c.cy = 247.6;
+      break;
+  }
+  return c;
+}
+
+Expected<std::string> readTextFile(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return Error{path + ": file does not exist"};
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error{path + ": cannot open for reading"};
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+namespace {
+
+std::string describeType(const cv::Mat& m) {
+  const int depth = m.depth();
+  const char* bits = depth == CV_8U ? "8-bit" : depth == CV_16U ? "16-bit" : depth == CV_32F ? "32-bit float" : "other";
+  return fmt::format("{} {}-channel", bits, m.channels());
+}
+
+bool endsWithJpegEoi(const std::string& bytes) {
+  // EOI (FF D9) should be the last marker; tolerate a little trailing padding.
+  const size_t n = bytes.size();
+  for (size_t k = 0; k + 1 < std::min<size_t>(n, 64); ++k) {
+    const size_t i = n - 2 - k;
+    if (static_cast<uint8_t>(bytes[i]) == 0xFF && static_cast<uint8_t>(bytes[i + 1]) == 0xD9) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, bool depth16) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return Error{fmt::format("{}: listed file {} does not exist", ref, path)};
+  auto bytes = readTextFile(path);
+  if (!bytes) return Error{fmt::format("{}: {}", ref, bytes.message())};
+  const std::string& b = *bytes;
+  const bool is_png = b.size() >= 8 && b.compare(0, 8, "\x89PNG\r\n\x1a\n") == 0;
+  const bool is_jpeg = b.size() >= 3 && static_cast<uint8_t>(b[0]) == 0xFF && static_cast<uint8_t>(b[1]) == 0xD8;
+  if (!is_png && !is_jpeg) return Error{fmt::format("{}: {} is not a PNG or JPEG image", ref, path)};
+  if (is_png && (b.size() < 20 || b.find("IEND", b.size() - 16) == std::string::npos)) {
+    return Error{fmt::format("{}: {} is a truncated PNG (no IEND chunk)", ref, path)};
+  }
+  if (is_jpeg && !endsWithJpegEoi(b)) return Error{fmt::format("{}: {} is a truncated JPEG (no EOI marker)", ref, path)};
+  cv::Mat img;
+  try {
+    const cv::Mat buf(1, static_cast<int>(b.size()), CV_8UC1, const_cast<char*>(b.data()));
+    img = cv::imdecode(buf, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return Error{fmt::format("{}: {} could not be decoded: {}", ref, path, e.what())};
+  }
+  if (img.empty()) return Error{fmt::format("{}: {} is corrupt (the decoder rejected it)", ref, path)};
+  if (depth16) {
+    if (img.type() != CV_16UC1) {
+      return Error{fmt::format("{}: depth image {} is {}, expected 16-bit single-channel", ref, path, describeType(img))};
+    }
+    return img;
+  }
+  if (img.depth() != CV_8U || (img.channels() != 3 && img.channels() != 4 && img.channels() != 1)) {
+    return Error{fmt::format("{}: color image {} is {}, expected 8-bit color", ref, path, describeType(img))};
+  }
+  cv::Mat rgb;
+  if (img.channels() == 1) {
+    cv::cvtColor(img, rgb, cv::COLOR_GRAY2RGB);
+  } else if (img.channels() == 4) {
+    cv::cvtColor(img, rgb, cv::COLOR_BGRA2RGB);
+  } else {
+    cv::cvtColor(img, rgb, cv::COLOR_BGR2RGB);
+  }
+  return rgb;
+}
+
+Expected<std::unique_ptr<Dataset>> Dataset::open(const std::string& dir, const DatasetOptions& options) {
+  std::unique_ptr<Dataset> d(new Dataset());
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return Error{dir + ": dataset folder does not exist"};
+  d->dir_ = fs::absolute(dir).lexically_normal().string();
+  Status status;
+  if (fs::exists(fs::path(dir) / "rgb.txt") || fs::exists(fs::path(dir) / "depth.txt")) {
+    d->kind_ = DatasetKind::kTum;
+    status = openTum(*d, options);
+  } else if (fs::is_directory(fs::path(dir) / "results") || fs::exists(fs::path(dir) / "traj.txt")) {
+    d->kind_ = DatasetKind::kReplica;
+    status = openReplica(*d, options);
+  } else {
+    return Error{dir + ": not a dataset folder: expected rgb.txt + depth.txt (TUM layout) or results/ + traj.txt "
+                       "(Replica NICE-SLAM layout)"};
+  }
+  if (!status) return Error{status.message()};
+  if (options.depth_scale > 0) d->depth_scale_ = options.depth_scale;
+  if (auto s = d->finishCamera(options); !s) return Error{s.message()};
+  for (const auto& m : d->skipped_) spdlog::warn("skipped: {}", m);
+  return d;
+}
+
+namespace {
+Expected<alg::PinholeCamera> readCalibrationYaml(const std::string& path) {
+  try {
+    const YAML::Node n = YAML::LoadFile(path);
+    alg::PinholeCamera c;
+    c.fx = n["fx"].as<double>();
+    c.fy = n["fy"].as<double>();
+    c.cx = n["cx"].as<double>();
+    c.cy = n["cy"].as<double>();
+    c.width = n["width"].as<int>();
+    c.height = n["height"].as<int>();
+    if (n["distortion"]) {
+      const auto v = n["distortion"].as<std::vector<double>>();
+      if (v.size() != 5) return Error{path + ": distortion needs 5 values k1 k2 p1 p2 k3"};
+      std::copy(v.begin(), v.end(), c.distortion.begin());
+    }
+    return c;
+  } catch (const YAML::Exception& e) {
+    return Error{fmt::format("{}: {} (expected keys fx fy cx cy width height [distortion])", path, e.what())};
+  }
+}
+}  // namespace
+
+Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
+  const fs::path dir(d.dir_);
+  ParseOptions po{options.skip_bad};
+  auto parse_list = [&](const char* name) -> Expected<ParsedList> {
+    const std::string path = (dir / name).string();
+    auto text = readTextFile(path);
+    if (!text) return Error{text.message() + " (a TUM dataset needs rgb.txt and depth.txt)"};
+    return parseTumList(*text, path, po);
+  };
+  auto rgb = parse_list("rgb.txt");
+  if (!rgb) return Error{rgb.message()};
+  auto depth = parse_list("depth.txt");
+  if (!depth) return Error{depth.message()};
+  d.skipped_.insert(d.skipped_.end(), rgb->skipped.begin(), rgb->skipped.end());
+  d.skipped_.insert(d.skipped_.end(), depth->skipped.begin(), depth->skipped.end());
+
+  std::vector<int64_t> rs, ds;
+  for (const auto& e : rgb->entries) rs.push_back(e.stamp_ns);
+  for (const auto& e : depth->entries) ds.push_back(e.stamp_ns);
+  alg::AssociationParams ap;
+  ap.max_difference_ns = static_cast<int64_t>(options.max_association_s * 1e9);
+  const auto pairs = alg::associateStamps(rs, ds, ap);
+  if (pairs.empty()) {
+    return Error{fmt::format("{}: no color frame in rgb.txt has a depth frame in depth.txt within {} s",
+                             d.dir_, options.max_association_s)};
+  }
+  const std::string rgb_list = (dir / "rgb.txt").string(), depth_list = (dir / "depth.txt").string();
+  for (const auto& [i, j] : pairs) {
+    const auto& re = rgb->entries[i];
+    const auto& de = depth->entries[j];
+    d.frames_.push_back({re.stamp_ns, (dir / re.path).string(), (dir / de.path).string(),
+                         fmt::format("{}:{}", rgb_list, re.line), fmt::format("{}:{}", depth_list, de.line)});
+  }
+  const fs::path gt = dir / "groundtruth.txt";
+  if (fs::exists(gt)) {
+    auto text = readTextFile(gt.string());
+    if (!text) return Error{text.message()};
+    auto traj = parseTumTrajectory(*text, gt.string(), po);
+    if (!traj) return Error{traj.message()};
+    d.skipped_.insert(d.skipped_.end(), traj->skipped.begin(), traj->skipped.end());
+    d.ground_truth_ = std::move(traj->poses);
+    std::stable_sort(d.ground_truth_.begin(), d.ground_truth_.end(),
+                     [](const StampedPose& a, const StampedPose& b) { return a.stamp_ns < b.stamp_ns; });
+  }
+  d.depth_scale_ = 5000.0;
+  const fs::path calib = dir / "calibration.yaml";
+  const std::string name = dir.filename().string();
+  if (fs::exists(calib)) {
+    auto c = readCalibrationYaml(calib.string());
+    if (!c) return Error{c.message()};
+    d.camera_ = *c;
+    d.camera_source_ = calib.string();
+    try {
+      const YAML::Node n = YAML::LoadFile(calib.string());
+      if (n["depth_scale"]) d.depth_scale_ = n["depth_scale"].as<double>();
+    } catch (const YAML::Exception& e) {
+      return Error{fmt::format("{}: {}", calib.string(), e.what())};
+    }
+  } else {
+    for (int fr = 1; fr <= 3; ++fr) {
+      if (name.find(fmt::format("freiburg{}", fr)) != std::string::npos) {
+        d.camera_ = tumCameraPreset(fr);
+        d.camera_source_ = fmt::format("TUM freiburg{} preset (from the folder name)", fr);
+      }
+    }
+  }
+  return Status::ok();
+}
+
+Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
+  const fs::path dir(d.dir_);
+  const fs::path results = dir / "results";
+  std::error_code ec;
+  if (!fs::is_directory(results, ec)) return Error{results.string() + ": folder does not exist (Replica layout)"};
+  const std::regex frame_re(R"(frame(\d+)\.(jpg|png))"), depth_re(R"(depth(\d+)\.png)");
+  std::map<long, std::string> colors, depths;
+  for (const auto& entry : fs::directory_iterator(results, ec)) {
+    const std::string f = entry.path().filename().string();
+    std::smatch m;
+    if (std::regex_match(f, m, frame_re)) colors[std::stol(m[1])] = entry.path().string();
+    if (std::regex_match(f, m, depth_re)) depths[std::stol(m[1])] = entry.path().string();
+  }
+  if (colors.empty()) return Error{results.string() + ": no frameNNNNNN.jpg images"};
+  const int64_t period_ns = 1'000'000'000LL / 30;
+  size_t index = 0;
+  for (const auto& [number, path] : colors) {
+    auto it = depths.find(number);
+    if (it == depths.end()) {
+      const std::string msg = fmt::format("{}: depth image for frame {} is missing", path, number);
+      if (!options.skip_bad) return Error{msg};
+      d.skipped_.push_back(msg);
+      continue;
+    }
+    (void)index;
+    d.frames_.push_back({number * period_ns, path, it->second, path, it->second});
+  }
+  const fs::path traj_path = dir / "traj.txt";
+  if (fs::exists(traj_path)) {
+    auto text = readTextFile(traj_path.string());
+    if (!text) return Error{text.message()};
+    auto traj = parseMatrixTrajectory(*text, traj_path.string(), period_ns, ParseOptions{options.skip_bad});
+    if (!traj) return Error{traj.message()};
+    d.skipped_.insert(d.skipped_.end(), traj->skipped.begin(), traj->skipped.end());
+    const long last_frame = colors.rbegin()->first;
+    if (traj->skipped.empty() && static_cast<long>(traj->poses.size()) <= last_frame) {
+      return Error{fmt::format("{}: has {} poses but the images go up to frame {}", traj_path.string(),
+                               traj->poses.size(), last_frame)};
+    }
+    d.ground_truth_ = std::move(traj->poses);
+  }
+  for (const fs::path& p : {dir / "cam_params.json", dir.parent_path() / "cam_params.json"}) {
+    if (!fs::exists(p)) continue;
+    try {
+      const YAML::Node n = YAML::LoadFile(p.string());  // JSON is valid YAML
+      const YAML::Node c = n["camera"] ? n["camera"] : n;
+      d.camera_.fx = c["fx"].as<double>();
+      d.camera_.fy = c["fy"].as<double>();
+      d.camera_.cx = c["cx"].as<double>();
+      d.camera_.cy = c["cy"].as<double>();
+      d.camera_.width = c["w"].as<int>();
+      d.camera_.height = c["h"].as<int>();
+      d.depth_scale_ = c["scale"] ? c["scale"].as<double>() : 6553.5;
+      d.camera_source_ = p.string();
+    } catch (const YAML::Exception& e) {
+      return Error{fmt::format("{}: {} (expected camera.fx fy cx cy w h scale)", p.string(), e.what())};
+    }
+    break;
+  }
+  if (d.camera_source_.empty()) d.depth_scale_ = 6553.5;
+  return Status::ok();
+}
+
+Status Dataset::finishCamera(const DatasetOptions& options) {
+  if (options.camera && (options.force_camera || camera_source_.empty())) {
+    camera_ = *options.camera;
+    camera_source_ = "configuration (camera section)";
+  }
+  if (camera_source_.empty()) {
+    return Error{dir_ + ": the dataset carries no intrinsics (no calibration.yaml, cam_params.json or freiburgN in "
+                        "the folder name); give them in the config's camera section"};
+  }
+  if (camera_.width <= 0 || camera_.height <= 0 || !(camera_.fx > 0) || !(camera_.fy > 0)) {
+    return Error{fmt::format("{}: invalid intrinsics from {}", dir_, camera_source_)};
+  }
+  if (options.undistort && camera_.hasDistortion()) {
+    const cv::Matx33d K(camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
+    const cv::Mat dist(1, 5, CV_64F, camera_.distortion.data());
+    cv::initUndistortRectifyMap(K, dist, cv::Mat(), K, cv::Size(camera_.width, camera_.height), CV_32FC1,
+                                undistort_x_, undistort_y_);
+    camera_.distortion = {0, 0, 0, 0, 0};
+  }
+  return Status::ok();
+}
+
+Expected<RgbdFrame> Dataset::load(size_t i) const {
+  const FrameFiles& f = frames_.at(i);
+  auto rgb = readImage(f.rgb_path, f.rgb_ref, false);
+  if (!rgb) return Error{rgb.message()};
+  auto depth = readImage(f.depth_path, f.depth_ref, true);
+  if (!depth) return Error{depth.message()};
+  const cv::Size expected(camera_.width, camera_.height);
+  if (rgb->size() != expected) {
+    return Error{fmt::format("{}: color image {} is {}x{} but the camera is {}x{}", f.rgb_ref, f.rgb_path, rgb->cols,
+                             rgb->rows, camera_.width, camera_.height)};
+  }
+  if (depth->size() != expected) {
+    return Error{fmt::format("{}: depth image {} is {}x{} but the camera is {}x{}", f.depth_ref, f.depth_path,
+                             depth->cols, depth->rows, camera_.width, camera_.height)};
+  }
+  RgbdFrame frame;
+  frame.stamp_ns = f.stamp_ns;
+  frame.seq = i;
+  depth->convertTo(frame.depth, CV_32F, 1.0 / depth_scale_);
+  frame.rgb = *rgb;
+  if (!undistort_x_.empty()) {
+    cv::Mat rgb_u, depth_u;
+    cv::remap(frame.rgb, rgb_u, undistort_x_, undistort_y_, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::remap(frame.depth, depth_u, undistort_x_, undistort_y_, cv::INTER_NEAREST, cv::BORDER_CONSTANT);
+    frame.rgb = rgb_u;
+    frame.depth = depth_u;
+  }
+  return frame;
+}
+
+}  // namespace hxmap::drv

@@ -1,0 +1,480 @@
+#include "hxmap/dataset/synthetic.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+
+#include <fmt/format.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "hxmap/core/stamp.hpp"
+#include "hxmap/dataset/parsers.hpp"
+#include "hxmap/dataset/ply.hpp"
+
+namespace hxmap::drv {
+
+using Eigen::Vector3f;
+using Kind = Primitive::Kind;
+
+SyntheticScene SyntheticScene::room() {
+  SyntheticScene s;
+  auto box = [&](Vector3f c, Vector3f h, alg::Color3 col, int tex = 0) {
+    s.primitives_.push_back({Kind::kBox, c, h, 0.0f, col, tex});
+  };
+  auto capsule = [&](Vector3f p0, Vector3f p1, float r, alg::Color3 col) {
+    s.primitives_.push_back({Kind::kCapsule, p0, p1, r, col, 0});
+  };
+  // Room interior; z up, floor at z = 0.
+  s.primitives_.push_back({Kind::kRoom, {0, 0, 1.29f}, {2.0f, 1.5f, 1.31f}, 0.0f, {215, 205, 190}, 1});
+  // Floor planks as a slab whose top (z = 0) hides the room box floor.
+  box({0, 0, -0.05f}, {2.0f, 1.5f, 0.05f}, {150, 110, 70}, 2);
+  // Table: top and four legs 3 cm thick.
+  box({0.3f, 0.2f, 0.74f}, {0.6f, 0.4f, 0.02f}, {170, 120, 80});
+  for (float sx : {-1.0f, 1.0f}) {
+    for (float sy : {-1.0f, 1.0f}) {
+      capsule({0.3f + sx * 0.55f, 0.2f + sy * 0.35f, 0.0f}, {0.3f + sx * 0.55f, 0.2f + sy * 0.35f, 0.72f}, 0.015f,
+              {90, 60, 40});
+    }
+  }
+  box({0.1f, 0.3f, 0.84f}, {0.12f, 0.08f, 0.08f}, {60, 120, 200});      // a box on the table
+  box({-1.5f, 1.1f, 0.5f}, {0.35f, 0.3f, 0.5f}, {230, 230, 235});        // cabinet
+  box({1.3f, -0.5f, 0.45f}, {0.18f, 0.18f, 0.02f}, {200, 60, 50});       // stool seat
+  for (float sx : {-1.0f, 1.0f}) {
+    for (float sy : {-1.0f, 1.0f}) {
+      capsule({1.3f + sx * 0.15f, -0.5f + sy * 0.15f, 0.0f}, {1.3f + sx * 0.15f, -0.5f + sy * 0.15f, 0.43f}, 0.01f,
+              {40, 40, 40});  // stool legs, 2 cm
+    }
+  }
+  s.primitives_.push_back({Kind::kSphere, {-0.8f, -0.5f, 0.25f}, {0, 0, 0}, 0.25f, {80, 170, 90}, 0});
+  capsule({-0.6f, 0.9f, 0.0f}, {-0.6f, 0.9f, 1.7f}, 0.005f, {30, 30, 30});     // 1 cm vertical rod
+  capsule({-1.2f, 1.3f, 1.1f}, {0.6f, 1.3f, 1.1f}, 0.0075f, {180, 180, 190});  // 1.5 cm horizontal rod
+  capsule({1.5f, 1.2f, 0.0f}, {1.1f, 0.9f, 1.4f}, 0.01f, {200, 170, 40});      // 2 cm slanted rod
+  return s;
+}
+
+namespace {
+
+float boxSdf(const Vector3f& p, const Vector3f& c, const Vector3f& h) {
+  const Vector3f q = (p - c).cwiseAbs() - h;
+  return q.cwiseMax(0.0f).norm() + std::min(q.maxCoeff(), 0.0f);
+}
+
+Vector3f closestOnSegment(const Vector3f& p, const Vector3f& a, const Vector3f& b) {
+  const Vector3f ab = b - a;
+  const float t = std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0f, 1.0f);
+  return a + t * ab;
+}
+
+float primitiveSdf(const Primitive& pr, const Vector3f& p) {
+  switch (pr.kind) {
+    case Kind::kBox: return boxSdf(p, pr.a, pr.b);
+    case Kind::kRoom: return -boxSdf(p, pr.a, pr.b);
+    case Kind::kSphere: return (p - pr.a).norm() - pr.radius;
+    case Kind::kCapsule: return (p - closestOnSegment(p, pr.a, pr.b)).norm() - pr.radius;
+  }
+  return 1e9f;
+}
+
+// Entry of a ray into a sphere, or -1.
+float raySphere(const Vector3f& o, const Vector3f& d, const Vector3f& c, float r) {
+  const Vector3f oc = o - c;
+  const float b = oc.dot(d), cc = oc.squaredNorm() - r * r;
+  const float h = b * b - cc;
+  if (h < 0) return -1;
+  return -b - std::sqrt(h);
+}
+
+float rayCapsule(const Vector3f& o, const Vector3f& d, const Vector3f& pa, const Vector3f& pb, float r) {
+  // Entry into the union of the finite cylinder's side and the two end spheres.
+  float best = -1;
+  auto take = [&](float t) {
+    if (t > 0 && (best < 0 || t < best)) best = t;
+  };
+  take(raySphere(o, d, pa, r));
+  take(raySphere(o, d, pb, r));
+  const Vector3f ba = pb - pa, oa = o - pa;
+  const float baba = ba.dot(ba), bard = ba.dot(d), baoa = ba.dot(oa), rdoa = d.dot(oa), oaoa = oa.dot(oa);
+  const float a = baba - bard * bard;
+  if (a > 1e-10f) {
+    const float b = baba * rdoa - baoa * bard, c = baba * oaoa - baoa * baoa - r * r * baba;
+    const float h = b * b - a * c;
+    if (h >= 0) {
+      const float t = (-b - std::sqrt(h)) / a;
+      const float y = baoa + t * bard;
+      if (y > 0 && y < baba) take(t);
+    }
+  }
+  return best;
+}
+
+// Slab test; returns entry (outside) or exit (inside_out) distance, or -1.
+float rayBox(const Vector3f& o, const Vector3f& d, const Vector3f& c, const Vector3f& h, bool inside_out) {
+  const Vector3f inv = d.cwiseInverse();
+  const Vector3f t0 = (c - h - o).cwiseProduct(inv), t1 = (c + h - o).cwiseProduct(inv);
+  const float tn = t0.cwiseMin(t1).maxCoeff(), tf = t0.cwiseMax(t1).minCoeff();
+  if (tn > tf) return -1;
+  if (inside_out) return tf > 0 ? tf : -1;
+  return tn > 0 ? tn : -1;
+}
+
+Vector3f boxNormal(const Vector3f& p, const Vector3f& c, const Vector3f& h) {
+  const Vector3f q = (p - c).cwiseQuotient(h);
+  int axis = 0;
+  q.cwiseAbs().maxCoeff(&axis);
+  Vector3f n = Vector3f::Zero();
+  n[axis] = q[axis] > 0 ? 1.0f : -1.0f;
+  return n;
+}
+
+uint32_t hash3(int x, int y, int z, uint32_t seed) {
+  uint32_t h = seed * 0x9E3779B9u ^ static_cast<uint32_t>(x) * 0x85EBCA6Bu ^ static_cast<uint32_t>(y) * 0xC2B2AE35u ^
+               static_cast<uint32_t>(z) * 0x27D4EB2Fu;
+  h ^= h >> 15;
+  h *= 0x2C1B3C6Du;
+  h ^= h >> 12;
+  h *= 0x297A2D39u;
+  h ^= h >> 15;
+  return h;
+}
+
+// Smooth value noise in [0, 1].
+float valueNoise(const Vector3f& p, uint32_t seed) {
+  const Eigen::Vector3f f = p.array().floor();
+  const Eigen::Vector3i i = f.cast<int>();
+  Vector3f t = p - f;
+  t = t.array() * t.array() * (3.0f - 2.0f * t.array());
+  float v = 0;
+  for (int c = 0; c < 8; ++c) {
+    const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
+    const float w = (dx ? t.x() : 1 - t.x()) * (dy ? t.y() : 1 - t.y()) * (dz ? t.z() : 1 - t.z());
+    v += w * static_cast<float>(hash3(i.x() + dx, i.y() + dy, i.z() + dz, seed) & 0xFFFF) / 65535.0f;
+  }
+  return v;
+}
+
+}  // namespace
+
+float SyntheticScene::sdf(const Vector3f& p) const {
+  float d = 1e9f;
+  for (const auto& pr : primitives_) d = std::min(d, primitiveSdf(pr, p));
+  return d;
+}
+
+bool SyntheticScene::raycast(const Vector3f& o, const Vector3f& d, float& t_hit, Vector3f& normal,
+                             int& primitive) const {
+  float best = -1;
+  int best_k = -1;
+  for (int k = 0; k < static_cast<int>(primitives_.size()); ++k) {
+    const auto& pr = primitives_[k];
+    float t = -1;
+    switch (pr.kind) {
+      case Kind::kBox: t = rayBox(o, d, pr.a, pr.b, false); break;
+      case Kind::kRoom: t = rayBox(o, d, pr.a, pr.b, true); break;
+      case Kind::kSphere: t = raySphere(o, d, pr.a, pr.radius); break;
+      case Kind::kCapsule: t = rayCapsule(o, d, pr.a, pr.b, pr.radius); break;
+    }
+    if (t > 0 && (best < 0 || t < best)) {
+      best = t;
+      best_k = k;
+    }
+  }
+  if (best_k < 0) return false;
+  const auto& pr = primitives_[best_k];
+  const Vector3f p = o + best * d;
+  switch (pr.kind) {
+    case Kind::kBox: normal = boxNormal(p, pr.a, pr.b); break;
+    case Kind::kRoom: normal = -boxNormal(p, pr.a, pr.b); break;
+    case Kind::kSphere: normal = (p - pr.a).normalized(); break;
+    case Kind::kCapsule: normal = (p - closestOnSegment(p, pr.a, pr.b)).normalized(); break;
+  }
+  t_hit = best;
+  primitive = best_k;
+  return true;
+}
+
+alg::Color3 SyntheticScene::color(const Vector3f& p, const Vector3f& n, int primitive) const {
+  const Primitive& pr = primitives_[primitive];
+  Eigen::Vector3f albedo = pr.color.cast<float>() / 255.0f;
+  const float grain = valueNoise(p * 12.0f, 7u + static_cast<uint32_t>(primitive));
+  const float fine = valueNoise(p * 60.0f, 13u);
+  if (pr.texture == 1) {  // walls: large checker, posters of noise
+    const int cx = static_cast<int>(std::floor(p.x() * 2.5f)), cy = static_cast<int>(std::floor(p.y() * 2.5f)),
+              cz = static_cast<int>(std::floor(p.z() * 2.5f));
+    const float checker = ((cx + cy + cz) & 1) ? 0.75f : 1.0f;
+    const Eigen::Vector3f tint(0.8f + 0.4f * valueNoise(p * 1.5f, 3u), 0.8f + 0.4f * valueNoise(p * 1.5f, 4u),
+                               0.8f + 0.4f * valueNoise(p * 1.5f, 5u));
+    albedo = albedo.cwiseProduct(tint) * checker * (0.8f + 0.2f * fine);
+  } else if (pr.texture == 2) {  // planks along x
+    const float plank = valueNoise(Vector3f(0, std::floor(p.y() * 6.0f), 0), 9u);
+    const float rings = 0.5f + 0.5f * std::sin(p.x() * 40.0f + 8.0f * valueNoise(p * 3.0f, 11u));
+    albedo *= (0.7f + 0.3f * plank) * (0.85f + 0.15f * rings);
+  } else {
+    albedo *= 0.75f + 0.25f * grain + 0.1f * (fine - 0.5f);
+  }
+  const Vector3f light = Vector3f(0.3f, 0.5f, 1.0f).normalized();
+  const float shade = 0.45f + 0.55f * std::abs(n.dot(light));
+  const Eigen::Vector3f c = (albedo * shade * 255.0f).cwiseMax(0.0f).cwiseMin(255.0f);
+  return c.array().round().cast<uint8_t>();
+}
+
+namespace {
+
+void addBoxMesh(alg::TriangleMesh& m, const Vector3f& c, const Vector3f& h, bool inward) {
+  // Each face split in a grid so triangles stay small (better for visibility
+  // tests and for PLY viewers).
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int sign : {-1, 1}) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      const int nu = std::max(1, static_cast<int>(std::ceil(2 * h[u] / 0.25f)));
+      const int nv = std::max(1, static_cast<int>(std::ceil(2 * h[v] / 0.25f)));
+      const int base = static_cast<int>(m.vertices.size());
+      for (int j = 0; j <= nv; ++j) {
+        for (int i = 0; i <= nu; ++i) {
+          Vector3f p = c;
+          p[axis] += sign * h[axis];
+          p[u] += -h[u] + 2 * h[u] * static_cast<float>(i) / static_cast<float>(nu);
+          p[v] += -h[v] + 2 * h[v] * static_cast<float>(j) / static_cast<float>(nv);
+          m.vertices.push_back(p);
+        }
+      }
+      const bool flip = (sign < 0) != inward;
+      for (int j = 0; j < nv; ++j) {
+        for (int i = 0; i < nu; ++i) {
+          const int a = base + j * (nu + 1) + i, b = a + 1, d = a + nu + 1, e = d + 1;
+          if (flip) {
+            m.triangles.emplace_back(a, e, b);
+            m.triangles.emplace_back(a, d, e);
+          } else {
+            m.triangles.emplace_back(a, b, e);
+            m.triangles.emplace_back(a, e, d);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Unit sphere patch: center + r * direction, latitude rings.
+void addSphereMesh(alg::TriangleMesh& m, const Vector3f& c, float r, const Vector3f& axis, const Vector3f& u,
+                   const Vector3f& v, float lat0, float lat1, int rings, int segments) {
+  const int base = static_cast<int>(m.vertices.size());
+  for (int i = 0; i <= rings; ++i) {
+    const float lat = lat0 + (lat1 - lat0) * static_cast<float>(i) / static_cast<float>(rings);
+    for (int j = 0; j < segments; ++j) {
+      const float lon = 2.0f * static_cast<float>(M_PI) * static_cast<float>(j) / static_cast<float>(segments);
+      const Vector3f dir = std::sin(lat) * axis + std::cos(lat) * (std::cos(lon) * u + std::sin(lon) * v);
+      m.vertices.push_back(c + r * dir);
+    }
+  }
+  for (int i = 0; i < rings; ++i) {
+    for (int j = 0; j < segments; ++j) {
+      const int a = base + i * segments + j, b = base + i * segments + (j + 1) % segments;
+      const int d = a + segments, e = b + segments;
+      m.triangles.emplace_back(a, b, e);
+      m.triangles.emplace_back(a, e, d);
+    }
+  }
+}
+
+int segmentsFor(float r) {
+  // Chord error r (1 - cos(pi / n)) below 0.5 mm.
+  int n = 8;
+  while (r * (1 - std::cos(static_cast<float>(M_PI) / static_cast<float>(n))) > 0.0005f && n < 256) n += 4;
+  return n;
+}
+
+}  // namespace
+
+alg::TriangleMesh SyntheticScene::mesh() const {
+  alg::TriangleMesh out;
+  for (int k = 0; k < static_cast<int>(primitives_.size()); ++k) {
+    const auto& pr = primitives_[k];
+    alg::TriangleMesh m;
+    switch (pr.kind) {
+      case Kind::kBox: addBoxMesh(m, pr.a, pr.b, false); break;
+      case Kind::kRoom: addBoxMesh(m, pr.a, pr.b, true); break;
+      case Kind::kSphere: {
+        const int n = segmentsFor(pr.radius);
+        addSphereMesh(m, pr.a, pr.radius, Vector3f::UnitZ(), Vector3f::UnitX(), Vector3f::UnitY(),
+                      -static_cast<float>(M_PI) / 2, static_cast<float>(M_PI) / 2, n / 2, n);
+        break;
+      }
+      case Kind::kCapsule: {
+        const Vector3f axis = (pr.b - pr.a).normalized();
+        const Vector3f u = axis.unitOrthogonal(), v = axis.cross(u);
+        const int n = segmentsFor(pr.radius);
+        const float half_pi = static_cast<float>(M_PI) / 2;
+        addSphereMesh(m, pr.a, pr.radius, axis, u, v, -half_pi, 0.0f, n / 4, n);
+        addSphereMesh(m, pr.b, pr.radius, axis, u, v, 0.0f, half_pi, n / 4, n);
+        // Body between the two equators, split along its length.
+        const int rings = std::max(1, static_cast<int>(std::ceil((pr.b - pr.a).norm() / 0.1f)));
+        const int base = static_cast<int>(m.vertices.size());
+        for (int i = 0; i <= rings; ++i) {
+          const Vector3f c = pr.a + (pr.b - pr.a) * static_cast<float>(i) / static_cast<float>(rings);
+          for (int j = 0; j < n; ++j) {
+            const float lon = 2.0f * static_cast<float>(M_PI) * static_cast<float>(j) / static_cast<float>(n);
+            m.vertices.push_back(c + pr.radius * (std::cos(lon) * u + std::sin(lon) * v));
+          }
+        }
+        for (int i = 0; i < rings; ++i) {
+          for (int j = 0; j < n; ++j) {
+            const int a = base + i * n + j, b = base + i * n + (j + 1) % n;
+            m.triangles.emplace_back(a, b, b + n);
+            m.triangles.emplace_back(a, b + n, a + n);
+          }
+        }
+        break;
+      }
+    }
+    m.colors.assign(m.vertices.size(), pr.color);
+    out.append(m);
+  }
+  return out;
+}
+
+Trajectory syntheticTrajectory(const SyntheticParams& params) {
+  Trajectory traj;
+  const int64_t period_ns = static_cast<int64_t>(1e9 / params.fps);
+  const int64_t start_ns = 1'000'000'000LL;
+  // Speeds are fixed in physical units (about 0.35 m/s, 20 deg/s), so a
+  // longer sequence covers more of the room rather than moving faster.
+  for (int i = 0; i < params.frames; ++i) {
+    const double t = static_cast<double>(i) / params.fps;  // seconds
+    Eigen::Vector3d eye, target;
+    if (params.trajectory == "sweep") {
+      const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
+      eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
+      target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
+    } else {
+      const double phi = -2.3 + 0.3 * t;  // around the table
+      eye = {0.3 + 1.35 * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.12 * std::sin(1.1 * t)};
+      target = {0.2 + 0.15 * std::sin(0.8 * t), 0.25 + 0.1 * std::cos(0.6 * t), 0.65};
+    }
+    const Eigen::Vector3d forward = (target - eye).normalized();
+    const Eigen::Vector3d right = forward.cross(Eigen::Vector3d::UnitZ()).normalized();
+    const Eigen::Vector3d down = forward.cross(right);
+    StampedPose p;
+    p.stamp_ns = start_ns + i * period_ns;
+    p.T_world_cam.linear().col(0) = right;
+    p.T_world_cam.linear().col(1) = down;
+    p.T_world_cam.linear().col(2) = forward;
+    p.T_world_cam.translation() = eye;
+    traj.push_back(p);
+  }
+  return traj;
+}
+
+RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera& cam,
+                          const Eigen::Isometry3d& T_world_cam, const SyntheticParams& params, int frame_index,
+                          const ParallelFor& parallel) {
+  RenderedFrame out;
+  out.rgb.create(cam.height, cam.width, CV_8UC3);
+  out.depth_true.create(cam.height, cam.width, CV_32F);
+  cv::Mat cosine(cam.height, cam.width, CV_32F);
+  const Eigen::Isometry3f T = T_world_cam.cast<float>();
+  const Vector3f origin = T.translation();
+  parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
+    for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
+      for (int u = 0; u < cam.width; ++u) {
+        const Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
+        const Vector3f dir = (T.linear() * ray_cam).normalized();
+        float t = 0;
+        Vector3f n;
+        int k = -1;
+        auto& px = out.rgb.at<cv::Vec3b>(v, u);
+        if (!scene.raycast(origin, dir, t, n, k)) {
+          out.depth_true.at<float>(v, u) = 0;
+          cosine.at<float>(v, u) = 0;
+          px = cv::Vec3b(0, 0, 0);
+          continue;
+        }
+        const Vector3f p = origin + t * dir;
+        const float z = t / ray_cam.norm();
+        out.depth_true.at<float>(v, u) = z;
+        cosine.at<float>(v, u) = std::abs(n.dot(dir));
+        const alg::Color3 c = scene.color(p, n, k);
+        px = cv::Vec3b(c[0], c[1], c[2]);
+      }
+    }
+  });
+  out.depth = out.depth_true.clone();
+  if (!params.noise) return out;
+
+  std::mt19937_64 rng(params.seed * 1000003ULL + static_cast<uint64_t>(frame_index));
+  std::normal_distribution<float> gauss(0.0f, 1.0f);
+  const float baseline_fx = 0.075f * static_cast<float>(cam.fx);
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      const float z = out.depth_true.at<float>(v, u);
+      float& d = out.depth.at<float>(v, u);
+      if (z <= 0) continue;
+      bool invalid = z < params.min_depth_m || z > params.max_depth_m || cosine.at<float>(v, u) < params.grazing_cos;
+      for (const auto& [du, dv] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        const int uu = u + du, vv = v + dv;
+        if (uu < 0 || vv < 0 || uu >= cam.width || vv >= cam.height) continue;
+        const float zn = out.depth_true.at<float>(vv, uu);
+        if (zn <= 0 || std::abs(zn - z) > params.edge_jump_ratio * z) invalid = true;
+      }
+      const float sigma = static_cast<float>(params.noise_scale) * (0.0012f + 0.0019f * (z - 0.4f) * (z - 0.4f));
+      const float noisy = z + sigma * gauss(rng);
+      // Disparity quantized to 1/8 pixel, as a Kinect v1.
+      const float disparity = std::round(baseline_fx / std::max(noisy, 0.05f) * 8.0f) / 8.0f;
+      d = invalid || disparity <= 0 ? 0.0f : baseline_fx / disparity;
+    }
+  }
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (int b = 0; b < params.missing_blobs_per_frame; ++b) {
+    const cv::Point center(static_cast<int>(uni(rng) * cam.width), static_cast<int>(uni(rng) * cam.height));
+    const cv::Size axes(static_cast<int>(10 + 25 * uni(rng)), static_cast<int>(10 + 25 * uni(rng)));
+    cv::ellipse(out.depth, center, axes, 180.0 * uni(rng), 0, 360, cv::Scalar(0), cv::FILLED);
+  }
+  // Mild color noise.
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      auto& px = out.rgb.at<cv::Vec3b>(v, u);
+      const float e = 2.0f * gauss(rng);
+      for (int c = 0; c < 3; ++c) px[c] = cv::saturate_cast<uint8_t>(px[c] + e);
+    }
+  }
+  return out;
+}
+
+Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scene, const SyntheticParams& params,
+                              const ParallelFor& parallel, const std::function<void(int, int)>& progress) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(fs::path(dir) / "rgb", ec);
+  fs::create_directories(fs::path(dir) / "depth", ec);
+  if (ec) return Error{dir + ": cannot create the sequence folders: " + ec.message()};
+  const Trajectory traj = syntheticTrajectory(params);
+  std::string rgb_list = "# color images\n# timestamp filename\n";
+  std::string depth_list = "# depth maps\n# timestamp filename\n";
+  for (int i = 0; i < params.frames; ++i) {
+    const RenderedFrame f = renderFrame(scene, params.camera, traj[i].T_world_cam, params, i, parallel);
+    const std::string stamp = formatStampS(traj[i].stamp_ns);
+    cv::Mat bgr, depth16;
+    cv::cvtColor(f.rgb, bgr, cv::COLOR_RGB2BGR);
+    f.depth.convertTo(depth16, CV_16U, 5000.0);
+    const std::string rgb_rel = "rgb/" + stamp + ".png", depth_rel = "depth/" + stamp + ".png";
+    if (!cv::imwrite((fs::path(dir) / rgb_rel).string(), bgr) ||
+        !cv::imwrite((fs::path(dir) / depth_rel).string(), depth16)) {
+      return Error{dir + ": cannot write images (disk full or not writable?)"};
+    }
+    rgb_list += stamp + " " + rgb_rel + "\n";
+    depth_list += stamp + " " + depth_rel + "\n";
+    if (progress) progress(i + 1, params.frames);
+  }
+  const auto& c = params.camera;
+  const std::string calib = fmt::format(
+      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: {}\n"
+      "height: {}\ndepth_scale: 5000\n",
+      params.seed, params.trajectory, params.noise ? "on" : "off", c.fx, c.fy, c.cx, c.cy, c.width, c.height);
+  for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list}, {"depth.txt", depth_list},
+                                   {"groundtruth.txt", formatTumTrajectory(traj)}, {"calibration.yaml", calib}}) {
+    if (auto s = writeTextFile((fs::path(dir) / name).string(), text); !s) return s;
+  }
+  return writePly((fs::path(dir) / "gt_mesh.ply").string(), scene.mesh());
+}
+
+}  // namespace hxmap::drv

@@ -1,0 +1,349 @@
+#include "commands.hpp"
+
+#include <algorithm>
+#include <filesystem>
+#include <numeric>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "hxmap/config/config.hpp"
+#include "hxmap/dataset/dataset.hpp"
+#include "hxmap/dataset/parsers.hpp"
+#include "hxmap/dataset/ply.hpp"
+#include "hxmap/dataset/synthetic.hpp"
+#include "hxmap/eval/mesh_metrics.hpp"
+#include "hxmap/eval/trajectory_metrics.hpp"
+#include "hxmap/frontend/frontend.hpp"
+#include "hxmap/tsdf/mesh_extract.hpp"
+#include "parallel.hpp"
+#include "progress.hpp"
+
+namespace fs = std::filesystem;
+
+namespace hxmap::rt {
+
+namespace {
+
+Expected<HxmapConfig> loadAndPrint(const std::string& path) {
+  Expected<HxmapConfig> config = path.empty() ? Expected<HxmapConfig>(HxmapConfig{}) : loadConfig(path);
+  if (!config) return config;
+  spdlog::info("effective configuration ({}):\n{}", path.empty() ? "built-in defaults" : path, dumpConfig(*config));
+  return config;
+}
+
+struct Percentiles {
+  double median = 0, p90 = 0, max = 0, mean = 0;
+};
+Percentiles percentiles(std::vector<double> v) {
+  Percentiles p;
+  if (v.empty()) return p;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  p.median = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+  p.p90 = v[std::min(n - 1, static_cast<size_t>(0.9 * static_cast<double>(n)))];
+  p.max = v.back();
+  p.mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(n);
+  return p;
+}
+
+std::string meshScoresText(const alg::MeshScores& s, const alg::MeshMetricsParams& p) {
+  return fmt::format(
+      "accuracy {:.2f} cm, completion {:.2f} cm, completion ratio@{:.0f}cm {:.1f}%\n"
+      "    @{:.0f}cm: precision {:.1f}% recall {:.1f}% F1 {:.1f}%\n"
+      "    @{:.0f}cm: precision {:.1f}% recall {:.1f}% F1 {:.1f}%\n",
+      s.accuracy_cm, s.completion_cm, p.threshold_coarse_m * 100, 100 * s.completion_ratio_coarse,
+      p.threshold_fine_m * 100, 100 * s.precision_fine, 100 * s.recall_fine, 100 * s.f1_fine,
+      p.threshold_coarse_m * 100, 100 * s.precision_coarse, 100 * s.recall_coarse, 100 * s.f1_coarse);
+}
+
+std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsParams& p) {
+  std::string out = fmt::format("mesh vs ground truth ({} / {} samples; unobserved ground truth excluded)\n",
+                                m.reconstruction_samples, m.ground_truth_samples);
+  out += "  point-to-surface (nearest triangle):\n    " + meshScoresText(m.point_to_surface, p);
+  if (p.point_to_point) {
+    out += "  point-to-sampled-point (as many published tables; sampling-limited at fine thresholds):\n    " +
+           meshScoresText(m.point_to_point, p);
+  }
+  return out;
+}
+
+alg::MeshMetricsParams meshParams(const EvalConfig& e) {
+  alg::MeshMetricsParams p;
+  p.samples = e.mesh_samples;
+  p.threshold_fine_m = e.threshold_fine_m;
+  p.threshold_coarse_m = e.threshold_coarse_m;
+  return p;
+}
+
+std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, double rpe_delta_s) {
+  const alg::AteResult ate = alg::computeAte(est, gt);
+  if (ate.pairs == 0) return "ATE: fewer than 3 poses associate with the ground truth\n";
+  const alg::RpeResult rpe = alg::computeRpe(est, gt, static_cast<int64_t>(rpe_delta_s * 1e9));
+  return fmt::format(
+      "ATE RMSE {:.2f} cm (mean {:.2f}, median {:.2f}, max {:.2f} cm; {} poses)\n"
+      "RPE over {:.2f} s: translation RMSE {:.2f} cm, rotation RMSE {:.3f} deg ({} pairs)\n",
+      100 * ate.rmse_m, 100 * ate.mean_m, 100 * ate.median_m, 100 * ate.max_m, ate.pairs, rpe_delta_s,
+      100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
+}
+
+}  // namespace
+
+int runCommand(const RunOptions& o) {
+  auto config = loadAndPrint(o.config);
+  if (!config) {
+    spdlog::error("{}", config.message());
+    return 2;
+  }
+  HxmapConfig& c = *config;
+  drv::DatasetOptions dopt;
+  dopt.skip_bad = o.skip_bad || c.dataset.skip_bad_frames;
+  dopt.undistort = c.dataset.undistort;
+  dopt.max_association_s = c.dataset.max_association_s;
+  dopt.depth_scale = c.camera.depth_scale;
+  alg::PinholeCamera user_cam{c.camera.fx, c.camera.fy, c.camera.cx, c.camera.cy, c.camera.width, c.camera.height,
+                              {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
+  dopt.camera = user_cam;
+  dopt.force_camera = c.camera.override_dataset;
+  auto dataset = drv::Dataset::open(o.dataset, dopt);
+  if (!dataset) {
+    spdlog::error("{}", dataset.message());
+    return 2;
+  }
+  const drv::Dataset& ds = **dataset;
+  const auto& cam = ds.camera();
+  spdlog::info("dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
+               ds.dir(), ds.size(), cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, ds.cameraSource(),
+               ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
+  std::error_code ec;
+  fs::create_directories(o.out_dir, ec);
+  if (ec) {
+    spdlog::error("{}: cannot create the output folder: {}", o.out_dir, ec.message());
+    return 2;
+  }
+
+  const ParallelFor parallel = makeParallelFor(c.runtime.threads);
+  FrontendParams fp{c.preprocess, c.tsdf, c.raycast, c.tracking};
+  Frontend frontend(cam, fp, parallel);
+
+  // Frames to process.
+  std::vector<size_t> frames;
+  const int max_frames = o.max_frames >= 0 ? o.max_frames : c.dataset.max_frames;
+  for (size_t i = static_cast<size_t>(c.dataset.first_frame); i < ds.size(); i += c.dataset.stride) {
+    if (max_frames > 0 && frames.size() >= static_cast<size_t>(max_frames)) break;
+    frames.push_back(i);
+  }
+  if (frames.empty()) {
+    spdlog::error("{}: no frames to process (first_frame {} of {})", ds.dir(), c.dataset.first_frame, ds.size());
+    return 2;
+  }
+  if (c.dataset.initial_pose == "ground_truth" && !ds.groundTruth().empty()) {
+    Eigen::Isometry3d T0;
+    if (alg::interpolatePose(ds.groundTruth(), ds.stamp(frames[0]), 200'000'000, T0)) {
+      frontend.setInitialPose(T0);
+      spdlog::info("first pose taken from the ground truth (the map is in the ground truth's frame)");
+    }
+  }
+
+  std::array<std::vector<double>, kStageCount> stage_ms;
+  std::vector<double> total_ms;
+  size_t bad_frames = 0, tracked = 0;
+  std::string first_error;
+  Progress progress("mapping", frames.size());
+  const auto t_start = std::chrono::steady_clock::now();
+  for (size_t k = 0; k < frames.size(); ++k) {
+    auto frame = ds.load(frames[k]);
+    if (!frame) {
+      if (!dopt.skip_bad) {
+        first_error = frame.message();
+        spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
+        break;
+      }
+      ++bad_frames;
+      spdlog::warn("skipped frame {}: {}", frames[k], frame.message());
+      continue;
+    }
+    const FrameResult r = frontend.process(*frame);
+    spdlog::debug("frame {}: tracked {} inliers {} rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]", frames[k], r.tracked,
+                  r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),
+                  r.T_world_cam.translation().z());
+    if (!r.tracked) spdlog::warn("frame {} ({}): tracking lost: {}", frames[k], frame->stamp_ns, r.failure);
+    tracked += r.tracked;
+    double sum = 0;
+    for (int s = 0; s < kStageCount; ++s) {
+      stage_ms[s].push_back(r.stage_ms[s]);
+      sum += r.stage_ms[s];
+    }
+    total_ms.push_back(sum);
+    progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
+  }
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+
+  // Outputs are written even after an error, so nothing mapped so far is lost.
+  const std::string traj_path = (fs::path(o.out_dir) / "trajectory.txt").string();
+  const std::string mesh_path = (fs::path(o.out_dir) / "mesh.ply").string();
+  int exit_code = first_error.empty() ? 0 : 1;
+  if (auto s = drv::writeTextFile(traj_path, drv::formatTumTrajectory(frontend.trajectory())); !s) {
+    spdlog::error("{}", s.message());
+    exit_code = 1;
+  }
+  const alg::TriangleMesh mesh = alg::extractMesh(frontend.map(), c.mesh);
+  if (auto s = drv::writePly(mesh_path, mesh); !s) {
+    spdlog::error("{}", s.message());
+    exit_code = 1;
+  }
+
+  std::string summary = fmt::format("hxmap run summary\n=================\ndataset: {} ({} frames)\n", ds.dir(),
+                                    ds.size());
+  summary += fmt::format("frames: processed {}, tracked {}, lost {}, unreadable skipped {}, keyframes {}\n",
+                         total_ms.size(), tracked, frontend.lostFrames(), bad_frames, frontend.keyframes());
+  const auto mem = frontend.map().memory();
+  summary += fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",
+                         c.tsdf.voxel_size_m * 100, c.tsdf.truncation_m * 100, mem.blocks,
+                         static_cast<double>(mem.bytes) / (1 << 20), mesh.vertices.size(), mesh.triangles.size());
+  summary += "timing, ms per frame    median      p90      max\n";
+  for (int s = 0; s < kStageCount; ++s) {
+    const auto p = percentiles(stage_ms[s]);
+    summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", stageName(s), p.median, p.p90, p.max);
+  }
+  const auto pt = percentiles(total_ms);
+  summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
+  summary += fmt::format("throughput: {:.1f} frames/s over {:.1f} s wall (image loading included, {} threads)\n",
+                         static_cast<double>(total_ms.size()) / wall_s, wall_s,
+                         c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
+  if (!ds.groundTruth().empty()) summary += trajectoryMetricsText(frontend.trajectory(), ds.groundTruth(), c.eval.rpe_delta_s);
+  const fs::path gt_mesh_path = fs::path(ds.dir()) / "gt_mesh.ply";
+  if (!o.no_mesh_eval && fs::exists(gt_mesh_path)) {
+    auto gt_mesh = drv::readPly(gt_mesh_path.string());
+    if (!gt_mesh) {
+      spdlog::error("{}", gt_mesh.message());
+    } else {
+      spdlog::info("scoring the mesh against {} ...", gt_mesh_path.string());
+      alg::ObservedBy observed{cam, ds.groundTruth(), c.preprocess.max_depth_m};
+      const auto mp = meshParams(c.eval);
+      const auto m = alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, parallel);
+      summary += meshMetricsText(m, mp);
+    }
+  }
+  summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
+  if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
+  if (auto s = drv::writeTextFile((fs::path(o.out_dir) / "summary.txt").string(), summary); !s) {
+    spdlog::error("{}", s.message());
+    exit_code = 1;
+  }
+  std::fputs(summary.c_str(), stdout);
+  return exit_code;
+}
+
+int synthCommand(const SynthOptions& o) {
+  auto config = loadAndPrint(o.config);
+  if (!config) {
+    spdlog::error("{}", config.message());
+    return 2;
+  }
+  const SyntheticConfig& sc = config->synthetic;
+  drv::SyntheticParams p;
+  p.frames = o.frames > 0 ? o.frames : sc.frames;
+  p.seed = static_cast<uint64_t>(o.seed >= 0 ? o.seed : sc.seed);
+  p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
+  if (p.trajectory != "orbit" && p.trajectory != "sweep") {
+    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep", p.trajectory);
+    return 2;
+  }
+  p.noise = sc.noise && !o.no_noise;
+  p.noise_scale = sc.noise_scale;
+  p.missing_blobs_per_frame = sc.missing_blobs_per_frame;
+  Progress progress("rendering", static_cast<size_t>(p.frames));
+  const auto status = drv::writeSyntheticSequence(o.out_dir, drv::SyntheticScene::room(), p,
+                                                  makeParallelFor(config->runtime.threads),
+                                                  [&](int done, int) { progress.update(static_cast<size_t>(done)); });
+  if (!status) {
+    spdlog::error("{}", status.message());
+    return 1;
+  }
+  spdlog::info("wrote {} frames of the synthetic room (seed {}, {} trajectory, noise {}) to {}", p.frames, p.seed,
+               p.trajectory, p.noise ? "on" : "off", o.out_dir);
+  return 0;
+}
+
+int demoCommand(const std::string& out_dir, const std::string& config) {
+  const std::string scene = (fs::path(out_dir) / "scene").string();
+  SynthOptions so;
+  so.out_dir = scene;
+  so.config = config;
+  if (const int rc = synthCommand(so); rc != 0) return rc;
+  RunOptions ro;
+  ro.dataset = scene;
+  ro.config = config;
+  ro.out_dir = out_dir;
+  return runCommand(ro);
+}
+
+int evalCommand(const EvalOptions& o) {
+  bool did = false;
+  if (!o.traj.empty() || !o.gt_traj.empty()) {
+    if (o.traj.empty() || o.gt_traj.empty()) {
+      spdlog::error("trajectory evaluation needs both --traj and --gt-traj");
+      return 2;
+    }
+    Trajectory est, gt;
+    for (const auto& [path, out] : {std::pair{o.traj, &est}, {o.gt_traj, &gt}}) {
+      auto text = drv::readTextFile(path);
+      if (!text) {
+        spdlog::error("{}", text.message());
+        return 2;
+      }
+      auto parsed = drv::parseTumTrajectory(*text, path);
+      if (!parsed) {
+        spdlog::error("{}", parsed.message());
+        return 2;
+      }
+      *out = parsed->poses;
+    }
+    std::fputs(trajectoryMetricsText(est, gt, o.rpe_delta_s).c_str(), stdout);
+    did = true;
+  }
+  if (!o.mesh.empty() || !o.gt_mesh.empty()) {
+    if (o.mesh.empty() || o.gt_mesh.empty()) {
+      spdlog::error("mesh evaluation needs both --mesh and --gt-mesh");
+      return 2;
+    }
+    auto rec = drv::readPly(o.mesh);
+    auto gt = drv::readPly(o.gt_mesh);
+    if (!rec || !gt) {
+      spdlog::error("{}", !rec ? rec.message() : gt.message());
+      return 2;
+    }
+    alg::MeshMetricsParams mp;
+    mp.samples = o.samples;
+    std::unique_ptr<alg::ObservedBy> observed;
+    if (!o.observed_from.empty()) {
+      auto ds = drv::Dataset::open(o.observed_from);
+      if (!ds) {
+        spdlog::error("{}", ds.message());
+        return 2;
+      }
+      observed = std::make_unique<alg::ObservedBy>(alg::ObservedBy{(*ds)->camera(), (*ds)->groundTruth(), 10.0});
+    }
+    const auto m = alg::computeMeshMetrics(*rec, *gt, mp, observed.get(), makeParallelFor(0));
+    std::fputs(meshMetricsText(m, mp).c_str(), stdout);
+    did = true;
+  }
+  if (!did) {
+    spdlog::error("nothing to evaluate: give --traj/--gt-traj and/or --mesh/--gt-mesh");
+    return 2;
+  }
+  return 0;
+}
+
+int configCommand(const std::string& config) {
+  auto c = config.empty() ? Expected<HxmapConfig>(HxmapConfig{}) : loadConfig(config);
+  if (!c) {
+    spdlog::error("{}", c.message());
+    return 2;
+  }
+  std::fputs(dumpConfig(*c).c_str(), stdout);
+  return 0;
+}
+
+}  // namespace hxmap::rt

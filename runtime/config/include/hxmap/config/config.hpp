@@ -1,0 +1,77 @@
+// The hxmap configuration: every module's parameter struct, filled from YAML
+// in this one place. The loader validates types and ranges, rejects unknown
+// keys, and reports every problem at once with file and line. Presets in
+// config/ list only what differs from the defaults in the structs.
+#pragma once
+
+#include <string>
+
+#include "hxmap/core/expected.hpp"
+#include "hxmap/preprocess/params.hpp"
+#include "hxmap/tracking/params.hpp"
+#include "hxmap/tsdf/params.hpp"
+
+namespace hxmap::rt {
+
+/// Camera intrinsics given by the user; used when a dataset carries none, or
+/// always when `override_dataset` is set (and for live cameras).
+struct CameraConfig {
+  bool override_dataset = false;
+  double fx = 525.0, fy = 525.0, cx = 319.5, cy = 239.5;
+  int width = 640, height = 480;
+  double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;
+  double depth_scale = 0.0;  ///< depth pixels per meter; 0 = the dataset's own
+};
+
+struct DatasetConfig {
+  bool skip_bad_frames = false;  ///< skip (count, log) unreadable frames instead of stopping
+  bool undistort = true;
+  double max_association_s = 0.02;
+  int first_frame = 0;
+  int max_frames = 0;             ///< 0 = all
+  int stride = 1;                 ///< use every n-th frame
+  std::string initial_pose = "ground_truth";  ///< "ground_truth" (when present) or "identity"
+};
+
+struct SyntheticConfig {
+  int frames = 150;
+  int seed = 1;
+  std::string trajectory = "orbit";  ///< orbit | sweep
+  bool noise = true;
+  double noise_scale = 1.0;
+  int missing_blobs_per_frame = 0;
+};
+
+struct EvalConfig {
+  int mesh_samples = 200000;
+  double threshold_fine_m = 0.01;
+  double threshold_coarse_m = 0.05;
+  double rpe_delta_s = 1.0;
+};
+
+struct RuntimeConfig {
+  int threads = 0;  ///< data-parallel threads for the offline run; 0 = all cores
+};
+
+struct HxmapConfig {
+  CameraConfig camera;
+  DatasetConfig dataset;
+  alg::PreprocessParams preprocess;
+  alg::TsdfParams tsdf;
+  alg::RaycastParams raycast;
+  alg::MeshParams mesh;
+  alg::TrackingParams tracking;
+  SyntheticConfig synthetic;
+  EvalConfig eval;
+  RuntimeConfig runtime;
+};
+
+/// Loads `path` over the defaults. All problems are reported in one Error,
+/// one per line, each "file:line: section.key: what is wrong".
+Expected<HxmapConfig> loadConfig(const std::string& path);
+Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::string& source);
+
+/// The effective configuration as YAML (every key, with units in the names).
+std::string dumpConfig(const HxmapConfig& config);
+
+}  // namespace hxmap::rt

@@ -1,0 +1,310 @@
+#include "hxmap/config/config.hpp"
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <vector>
+
+#include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
+
+namespace hxmap::rt {
+
+namespace {
+
+// One description of every key drives loading, validation and printing.
+class Visitor {
+ public:
+  virtual ~Visitor() = default;
+  virtual void section(const char* name) = 0;
+  virtual void number(const char* key, double& v, double lo, double hi) = 0;
+  virtual void integer(const char* key, int& v, int lo, int hi) = 0;
+  virtual void boolean(const char* key, bool& v) = 0;
+  virtual void choice(const char* key, std::string& v, const std::vector<std::string>& choices) = 0;
+};
+
+void visit(HxmapConfig& c, Visitor& v) {
+  constexpr double kBig = 1e9;
+  v.section("camera");
+  v.boolean("override_dataset", c.camera.override_dataset);
+  v.number("fx", c.camera.fx, 1, 1e5);
+  v.number("fy", c.camera.fy, 1, 1e5);
+  v.number("cx", c.camera.cx, -1e4, 1e5);
+  v.number("cy", c.camera.cy, -1e4, 1e5);
+  v.integer("width", c.camera.width, 8, 16384);
+  v.integer("height", c.camera.height, 8, 16384);
+  v.number("k1", c.camera.k1, -100, 100);
+  v.number("k2", c.camera.k2, -100, 100);
+  v.number("p1", c.camera.p1, -100, 100);
+  v.number("p2", c.camera.p2, -100, 100);
+  v.number("k3", c.camera.k3, -100, 100);
+  v.number("depth_scale", c.camera.depth_scale, 0, 1e6);
+
+  v.section("dataset");
+  v.boolean("skip_bad_frames", c.dataset.skip_bad_frames);
+  v.boolean("undistort", c.dataset.undistort);
+  v.number("max_association_s", c.dataset.max_association_s, 0, 1);
+  v.integer("first_frame", c.dataset.first_frame, 0, 1 << 30);
+  v.integer("max_frames", c.dataset.max_frames, 0, 1 << 30);
+  v.integer("stride", c.dataset.stride, 1, 1000);
+  v.choice("initial_pose", c.dataset.initial_pose, {"ground_truth", "identity"});
+
+  auto& p = c.preprocess;
+  v.section("preprocess");
+  v.number("min_depth_m", p.min_depth_m, 0, 100);
+  v.number("max_depth_m", p.max_depth_m, 0.01, 100);
+  v.integer("bilateral_radius_px", p.bilateral_radius_px, 0, 10);
+  v.number("bilateral_sigma_px", p.bilateral_sigma_px, 0.1, 20);
+  v.number("bilateral_sigma_depth_factor", p.bilateral_sigma_depth_factor, 0.1, 100);
+  v.integer("pyramid_levels", p.pyramid_levels, 1, 5);
+  v.number("noise_sigma_a_m", p.noise_sigma_a_m, 1e-6, 1);
+  v.number("noise_sigma_b_per_m", p.noise_sigma_b_per_m, 0, 1);
+  v.number("edge_jump_sigmas", p.edge_jump_sigmas, 0.5, 1000);
+  v.number("edge_confidence_distance_px", p.edge_confidence_distance_px, 0, 100);
+  v.number("max_incidence_deg", p.max_incidence_deg, 1, 90);
+
+  auto& t = c.tsdf;
+  v.section("tsdf");
+  v.number("voxel_size_m", t.voxel_size_m, 0.002, 0.5);
+  v.number("truncation_m", t.truncation_m, 0.004, 2);
+  v.number("max_weight", t.max_weight, 1, 1e4);
+  v.number("max_integration_depth_m", t.max_integration_depth_m, 0.1, 100);
+  v.number("min_confidence", t.min_confidence, 0, 1);
+  v.integer("allocation_stride_px", t.allocation_stride_px, 1, 16);
+
+  v.section("raycast");
+  v.number("min_depth_m", c.raycast.min_depth_m, 0, 100);
+  v.number("max_depth_m", c.raycast.max_depth_m, 0.1, 100);
+  v.number("step_factor", c.raycast.step_factor, 0.1, 1);
+  v.number("min_weight", c.raycast.min_weight, 0, kBig);
+
+  v.section("mesh");
+  v.number("min_weight", c.mesh.min_weight, 0, kBig);
+  v.boolean("with_colors", c.mesh.with_colors);
+
+  auto& k = c.tracking;
+  v.section("tracking");
+  v.integer("iterations_level0", k.iterations_level0, 0, 100);
+  v.integer("iterations_level1", k.iterations_level1, 0, 100);
+  v.integer("iterations_level2", k.iterations_level2, 0, 100);
+  v.number("max_correspondence_distance_m", k.max_correspondence_distance_m, 0.001, 2);
+  v.number("max_normal_angle_deg", k.max_normal_angle_deg, 1, 90);
+  v.number("huber_delta_m", k.huber_delta_m, 1e-5, 1);
+  v.number("photometric_scale_m", k.photometric_scale_m, 0, 10);
+  v.number("photometric_huber", k.photometric_huber, 1e-4, 1);
+  v.number("photometric_min_gradient", k.photometric_min_gradient, 0, 1);
+  v.integer("photometric_stride_level0", k.photometric_stride_level0, 1, 16);
+  v.number("convergence_translation_m", k.convergence_translation_m, 0, 1);
+  v.number("convergence_rotation_rad", k.convergence_rotation_rad, 0, 1);
+  v.number("min_inlier_ratio", k.min_inlier_ratio, 0, 1);
+  v.integer("min_inliers", k.min_inliers, 6, 1 << 24);
+  v.number("max_rms_residual_m", k.max_rms_residual_m, 1e-5, 1);
+  v.number("min_hessian_eigenvalue_ratio", k.min_hessian_eigenvalue_ratio, 0, 1);
+  v.number("max_motion_translation_m", k.max_motion_translation_m, 0.001, 10);
+  v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);
+  v.boolean("constant_velocity", k.constant_velocity);
+  v.number("keyframe_translation_m", k.keyframe_translation_m, 0, 10);
+  v.number("keyframe_rotation_deg", k.keyframe_rotation_deg, 0, 180);
+  v.number("keyframe_interval_s", k.keyframe_interval_s, 0, 3600);
+
+  v.section("synthetic");
+  v.integer("frames", c.synthetic.frames, 1, 100000);
+  v.integer("seed", c.synthetic.seed, 0, 1 << 30);
+  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep"});
+  v.boolean("noise", c.synthetic.noise);
+  v.number("noise_scale", c.synthetic.noise_scale, 0, 100);
+  v.integer("missing_blobs_per_frame", c.synthetic.missing_blobs_per_frame, 0, 100);
+
+  v.section("eval");
+  v.integer("mesh_samples", c.eval.mesh_samples, 1000, 100000000);
+  v.number("threshold_fine_m", c.eval.threshold_fine_m, 1e-4, 1);
+  v.number("threshold_coarse_m", c.eval.threshold_coarse_m, 1e-4, 10);
+  v.number("rpe_delta_s", c.eval.rpe_delta_s, 0.001, 1000);
+
+  v.section("runtime");
+  v.integer("threads", c.runtime.threads, 0, 1024);
+}
+
+class Loader : public Visitor {
+ public:
+  Loader(const YAML::Node& root, std::string source) : root_(root), source_(std::move(source)) {}
+
+  void section(const char* name) override {
+    section_ = name;
+    sections_.insert(name);
+    // Node::operator= on a bound node re-points that node's content (it does
+    // not rebind), so nodes are rebound with reset() and looked up through a
+    // const view (operator[] on a non-const node may insert keys).
+    node_.reset();
+    const YAML::Node& root = root_;
+    if (root && root.IsMap() && root[name]) {
+      node_.reset(root[name]);
+      if (!node_.IsMap() && !node_.IsNull()) error(node_, fmt::format("{}: expected a mapping of keys", name));
+    }
+  }
+
+  void number(const char* key, double& v, double lo, double hi) override {
+    YAML::Node n;
+    if (!find(key, n)) return;
+    double x = 0;
+    if (!n.IsScalar() || !YAML::convert<double>::decode(n, x)) {
+      error(n, fmt::format("{}.{}: expected a number, got '{}'", section_, key, text(n)));
+      return;
+    }
+    if (!std::isfinite(x) || x < lo || x > hi) {
+      error(n, fmt::format("{}.{}: {} is outside the allowed range [{}, {}]", section_, key, text(n), lo, hi));
+      return;
+    }
+    v = x;
+  }
+
+  void integer(const char* key, int& v, int lo, int hi) override {
+    YAML::Node n;
+    if (!find(key, n)) return;
+    int x = 0;
+    if (!n.IsScalar() || !YAML::convert<int>::decode(n, x)) {
+      error(n, fmt::format("{}.{}: expected an integer, got '{}'", section_, key, text(n)));
+      return;
+    }
+    if (x < lo || x > hi) {
+      error(n, fmt::format("{}.{}: {} is outside the allowed range [{}, {}]", section_, key, x, lo, hi));
+      return;
+    }
+    v = x;
+  }
+
+  void boolean(const char* key, bool& v) override {
+    YAML::Node n;
+    if (!find(key, n)) return;
+    bool x = false;
+    if (!n.IsScalar() || !YAML::convert<bool>::decode(n, x)) {
+      error(n, fmt::format("{}.{}: expected true or false, got '{}'", section_, key, text(n)));
+      return;
+    }
+    v = x;
+  }
+
+  void choice(const char* key, std::string& v, const std::vector<std::string>& choices) override {
+    YAML::Node n;
+    if (!find(key, n)) return;
+    const std::string x = n.IsScalar() ? n.Scalar() : "";
+    if (std::find(choices.begin(), choices.end(), x) == choices.end()) {
+      error(n, fmt::format("{}.{}: '{}' is not one of: {}", section_, key, text(n), fmt::join(choices, ", ")));
+      return;
+    }
+    v = x;
+  }
+
+  // Unknown sections and keys, after the visit.
+  void checkUnknown() {
+    if (!root_ || root_.IsNull()) return;
+    if (!root_.IsMap()) {
+      error(root_, "the configuration must be a mapping of sections (camera:, tsdf:, ...)");
+      return;
+    }
+    for (const auto& kv : root_) {
+      const std::string name = kv.first.as<std::string>();
+      if (!sections_.count(name)) {
+        error(kv.first, fmt::format("unknown section '{}' (known: {})", name, fmt::join(sections_, ", ")));
+        continue;
+      }
+      if (!kv.second.IsMap()) continue;
+      for (const auto& kk : kv.second) {
+        const std::string key = kk.first.as<std::string>();
+        if (!known_.count(name + "." + key)) {
+          std::vector<std::string> keys;
+          for (const auto& k : known_) {
+            if (k.rfind(name + ".", 0) == 0) keys.push_back(k.substr(name.size() + 1));
+          }
+          error(kk.first, fmt::format("unknown key '{}.{}' (known in {}: {})", name, key, name, fmt::join(keys, ", ")));
+        }
+      }
+    }
+  }
+
+  const std::vector<std::string>& errors() const { return errors_; }
+
+ private:
+  bool find(const char* key, YAML::Node& out) {
+    known_.insert(section_ + "." + key);
+    if (!node_ || !node_.IsMap()) return false;
+    const YAML::Node& node = node_;
+    const YAML::Node n = node[key];
+    if (!n) return false;
+    out.reset(n);
+    return true;
+  }
+  static std::string text(const YAML::Node& n) {
+    if (n.IsScalar()) return n.Scalar();
+    if (n.IsSequence()) return "a list";
+    if (n.IsMap()) return "a mapping";
+    return "nothing";
+  }
+  void error(const YAML::Node& n, const std::string& what) {
+    errors_.push_back(fmt::format("{}:{}: {}", source_, n.Mark().line + 1, what));
+  }
+
+  YAML::Node root_, node_;
+  std::string source_, section_;
+  std::set<std::string> sections_, known_;
+  std::vector<std::string> errors_;
+};
+
+class Dumper : public Visitor {
+ public:
+  void section(const char* name) override { out_ += fmt::format("{}:\n", name); }
+  void number(const char* key, double& v, double, double) override { out_ += fmt::format("  {}: {}\n", key, v); }
+  void integer(const char* key, int& v, int, int) override { out_ += fmt::format("  {}: {}\n", key, v); }
+  void boolean(const char* key, bool& v) override { out_ += fmt::format("  {}: {}\n", key, v ? "true" : "false"); }
+  void choice(const char* key, std::string& v, const std::vector<std::string>&) override {
+    out_ += fmt::format("  {}: {}\n", key, v);
+  }
+  std::string out_;
+};
+
+}  // namespace
+
+Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::string& source) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml);
+  } catch (const YAML::ParserException& e) {
+    return Error{fmt::format("{}:{}: YAML syntax error: {}", source, e.mark.line + 1, e.msg)};
+  }
+  HxmapConfig config;
+  Loader loader(root, source);
+  visit(config, loader);
+  loader.checkUnknown();
+  if (!loader.errors().empty()) {
+    return Error{fmt::format("{} problem(s) in the configuration:\n{}", loader.errors().size(),
+                             fmt::join(loader.errors(), "\n"))};
+  }
+  // Relations between keys.
+  std::vector<std::string> errors;
+  if (config.preprocess.min_depth_m >= config.preprocess.max_depth_m) {
+    errors.push_back(source + ": preprocess.min_depth_m must be below preprocess.max_depth_m");
+  }
+  if (config.tsdf.truncation_m < 2 * config.tsdf.voxel_size_m) {
+    errors.push_back(source + ": tsdf.truncation_m must be at least 2 * tsdf.voxel_size_m");
+  }
+  if (!errors.empty()) return Error{fmt::format("{} problem(s) in the configuration:\n{}", errors.size(), fmt::join(errors, "\n"))};
+  return config;
+}
+
+Expected<HxmapConfig> loadConfig(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Error{path + ": configuration file not found or not readable"};
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return loadConfigFromString(ss.str(), path);
+}
+
+std::string dumpConfig(const HxmapConfig& config) {
+  HxmapConfig copy = config;
+  Dumper d;
+  visit(copy, d);
+  return d.out_;
+}
+
+}  // namespace hxmap::rt

@@ -1,0 +1,82 @@
+// The frontend: the per-frame backbone pipeline (paper 3.1). Owns the TSDF,
+// the only writer of it. Not thread safe: one thread calls process().
+#pragma once
+
+#include <array>
+#include <string>
+#include <vector>
+
+#include "hxmap/core/frame.hpp"
+#include "hxmap/core/parallel.hpp"
+#include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/tracking/icp.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::rt {
+
+struct FrontendParams {
+  alg::PreprocessParams preprocess;
+  alg::TsdfParams tsdf;
+  alg::RaycastParams raycast;
+  alg::TrackingParams tracking;
+};
+
+enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kStageCount };
+inline const char* stageName(int s) {
+  static const char* names[] = {"preprocess", "track", "integrate", "raycast"};
+  return names[s];
+}
+
+struct FrameResult {
+  int64_t stamp_ns = 0;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  bool tracked = false;     ///< pose from ICP (or the first frame)
+  bool integrated = false;  ///< the frame was fused into the map
+  bool keyframe = false;
+  std::string failure;      ///< why the frame was not tracked or not fused
+  int inliers = 0;
+  double rms_residual_m = 0;
+  std::array<double, kStageCount> stage_ms{};
+};
+
+class Frontend {
+ public:
+  Frontend(const alg::PinholeCamera& camera, const FrontendParams& params,
+           ParallelFor parallel = serialFor);
+
+  /// Pose of the first frame (default identity).
+  void setInitialPose(const Eigen::Isometry3d& T_world_cam) { T_initial_ = T_world_cam; }
+
+  /// Preprocess, track against the model, integrate, raycast the new model.
+  /// A frame that cannot be tracked is reported and not fused; the map is
+  /// unchanged and tracking resumes from the last good pose.
+  FrameResult process(const RgbdFrame& frame);
+
+  const alg::TsdfMap& map() const { return map_; }
+  const alg::PinholeCamera& camera() const { return camera_; }
+  /// Every processed frame's pose (lost frames carry the last good pose).
+  const Trajectory& trajectory() const { return trajectory_; }
+  size_t lostFrames() const { return lost_frames_; }
+  size_t keyframes() const { return keyframes_; }
+
+ private:
+  void renderModel();
+
+  alg::PinholeCamera camera_;
+  FrontendParams params_;
+  ParallelFor parallel_;
+  alg::TsdfMap map_;
+  std::vector<alg::ModelView> model_;  ///< model pyramid rendered at T_last_
+  alg::PreprocessedFrame last_frame_;  ///< the last tracked frame (photometric reference)
+  bool initialized_ = false;
+  Eigen::Isometry3d T_initial_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_last_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d velocity_ = Eigen::Isometry3d::Identity();  ///< T_prev^-1 T_last
+  Eigen::Isometry3d T_last_kf_ = Eigen::Isometry3d::Identity();
+  int64_t last_kf_ns_ = 0;
+  Trajectory trajectory_;
+  size_t lost_frames_ = 0, keyframes_ = 0;
+};
+
+}  // namespace hxmap::rt

@@ -1,0 +1,104 @@
+#include "hxmap/frontend/frontend.hpp"
+
+#include <chrono>
+
+#include "hxmap/tsdf/integrate.hpp"
+
+namespace hxmap::rt {
+
+namespace {
+class StageTimer {
+ public:
+  explicit StageTimer(double& out_ms) : out_(out_ms), start_(std::chrono::steady_clock::now()) {}
+  ~StageTimer() {
+    out_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count();
+  }
+  StageTimer(const StageTimer&) = delete;
+  StageTimer& operator=(const StageTimer&) = delete;
+
+ private:
+  double& out_;
+  std::chrono::steady_clock::time_point start_;
+};
+}  // namespace
+
+Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel)
+    : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf) {}
+
+FrameResult Frontend::process(const RgbdFrame& frame) {
+  FrameResult r;
+  r.stamp_ns = frame.stamp_ns;
+
+  // 1. Preprocess: depth in meters, denoise, pyramid, normals, confidence.
+  alg::PreprocessedFrame pre;
+  {
+    StageTimer t(r.stage_ms[kPreprocess]);
+    pre = alg::preprocessFrame(frame, camera_, params_.preprocess);
+  }
+  const int min_valid = std::max(params_.tracking.min_inliers, camera_.width * camera_.height / 100);
+
+  // 2. Track against the model rendered at the last pose (constant velocity guess).
+  Eigen::Isometry3d T = T_initial_;
+  if (pre.valid_pixels < min_valid) {
+    r.failure = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels)";
+  } else if (!initialized_) {
+    r.tracked = true;
+  } else {
+    StageTimer t(r.stage_ms[kTrack]);
+    const alg::IcpResult icp = alg::trackPointToPlane(
+        pre, model_, params_.tracking.constant_velocity ? T_last_ * velocity_ : T_last_, params_.tracking,
+        alg::PhotometricReference{&last_frame_, T_last_});
+    r.tracked = icp.ok;
+    r.failure = icp.failure;
+    r.inliers = icp.inliers;
+    r.rms_residual_m = icp.rms_residual_m;
+    T = icp.T_world_cam;
+  }
+
+  if (!r.tracked) {
+    // Keep the map and the last good pose; restart motion from rest.
+    ++lost_frames_;
+    velocity_.setIdentity();
+    r.T_world_cam = initialized_ ? T_last_ : T_initial_;
+    trajectory_.push_back({frame.stamp_ns, r.T_world_cam});
+    return r;
+  }
+
+  // 3. Integrate the range-gated depth with per-pixel confidence.
+  {
+    StageTimer t(r.stage_ms[kIntegrate]);
+    alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[0].confidence, camera_, T.cast<float>()};
+    alg::integrate(map_, obs, parallel_);
+  }
+  velocity_ = initialized_ ? T_last_.inverse() * T : Eigen::Isometry3d::Identity();
+  T_last_ = T;
+  last_frame_ = std::move(pre);
+  r.integrated = true;
+  r.T_world_cam = T;
+
+  // 4. Raycast the model at the new pose for the next frame.
+  {
+    StageTimer t(r.stage_ms[kRaycast]);
+    renderModel();
+  }
+
+  // 5. Keyframes by motion and time.
+  if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking)) {
+    r.keyframe = true;
+    T_last_kf_ = T;
+    last_kf_ns_ = frame.stamp_ns;
+    ++keyframes_;
+  }
+  initialized_ = true;
+  trajectory_.push_back({frame.stamp_ns, T});
+  return r;
+}
+
+void Frontend::renderModel() {
+  model_.clear();
+  model_.push_back(alg::raycast(map_, camera_, T_last_.cast<float>(), params_.raycast, false, parallel_));
+  const int levels = std::clamp(params_.preprocess.pyramid_levels, 1, 5);
+  for (int l = 1; l < levels; ++l) model_.push_back(alg::subsampleView(model_.back()));
+}
+
+}  // namespace hxmap::rt

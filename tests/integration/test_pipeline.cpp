@@ -1,0 +1,148 @@
+// The frontend end to end on synthetic sequences with exact ground truth,
+// including frames with no depth and corrupt frames.
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "commands.hpp"
+#include "hxmap/dataset/synthetic.hpp"
+#include "hxmap/eval/trajectory_metrics.hpp"
+#include "hxmap/frontend/frontend.hpp"
+#include "test_data.hpp"
+
+namespace hxmap::rt {
+namespace {
+
+const alg::PinholeCamera kCam{262.5, 262.5, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+
+class Pipeline : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    sp_.frames = 45;
+    sp_.camera = kCam;
+    traj_ = drv::syntheticTrajectory(sp_);
+  }
+  RgbdFrame frame(int i) {
+    const auto r = drv::renderFrame(scene_, kCam, traj_[i].T_world_cam, sp_, i);
+    return {traj_[i].stamp_ns, static_cast<uint64_t>(i), r.rgb, r.depth};
+  }
+  drv::SyntheticScene scene_ = drv::SyntheticScene::room();
+  drv::SyntheticParams sp_;
+  Trajectory traj_;
+};
+
+TEST_F(Pipeline, TracksNoisySyntheticSequence) {
+  Frontend fe(kCam, FrontendParams{});
+  fe.setInitialPose(traj_[0].T_world_cam);
+  for (int i = 0; i < sp_.frames; ++i) {
+    const FrameResult r = fe.process(frame(i));
+    EXPECT_TRUE(r.tracked) << "frame " << i << ": " << r.failure;
+  }
+  const auto ate = alg::computeAte(fe.trajectory(), traj_);
+  EXPECT_LT(ate.rmse_m, 0.01) << "ATE RMSE (m)";
+  EXPECT_GE(fe.keyframes(), 2u);
+}
+
+TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {
+  Frontend fe(kCam, FrontendParams{});
+  fe.setInitialPose(traj_[0].T_world_cam);
+  size_t blocks_before_blank = 0;
+  for (int i = 0; i < sp_.frames; ++i) {
+    RgbdFrame f = frame(i);
+    const bool blank = i >= 15 && i < 20;
+    if (blank) f.depth.setTo(0);
+    if (i == 15) blocks_before_blank = fe.map().blockCount();
+    const FrameResult r = fe.process(f);
+    if (blank) {
+      EXPECT_FALSE(r.tracked) << "frame " << i;
+      EXPECT_FALSE(r.integrated);
+      EXPECT_NE(r.failure.find("valid depth"), std::string::npos) << r.failure;
+      EXPECT_EQ(fe.map().blockCount(), blocks_before_blank) << "a blank frame changed the map";
+    } else if (i >= 21) {
+      EXPECT_TRUE(r.tracked) << "frame " << i << " did not recover: " << r.failure;
+    }
+  }
+  EXPECT_EQ(fe.lostFrames(), 5u);
+  // Tracked frames stay accurate (lost frames carry the last good pose).
+  Trajectory tracked;
+  for (size_t i = 0; i < fe.trajectory().size(); ++i) {
+    if (i < 15 || i >= 20) tracked.push_back(fe.trajectory()[i]);
+  }
+  EXPECT_LT(alg::computeAte(tracked, traj_).rmse_m, 0.015);
+}
+
+TEST_F(Pipeline, CorruptFramesNeverCrash) {
+  Frontend fe(kCam, FrontendParams{});
+  fe.setInitialPose(traj_[0].T_world_cam);
+  ASSERT_TRUE(fe.process(frame(0)).tracked);
+  RgbdFrame nan = frame(1);
+  for (int v = 0; v < nan.depth.rows; v += 7) {
+    for (int u = 0; u < nan.depth.cols; u += 5) {
+      nan.depth.at<float>(v, u) = (u % 2) ? std::numeric_limits<float>::quiet_NaN() : std::numeric_limits<float>::infinity();
+    }
+  }
+  nan.depth.at<float>(5, 5) = -1.0f;
+  EXPECT_TRUE(fe.process(nan).tracked) << "sparse NaN/inf depth must be ignored, not fatal";
+  RgbdFrame wrong_size = frame(2);
+  wrong_size.depth = cv::Mat(10, 10, CV_32F, cv::Scalar(1.0f));
+  EXPECT_FALSE(fe.process(wrong_size).tracked);
+  RgbdFrame wrong_type = frame(3);
+  wrong_type.depth.convertTo(wrong_type.depth, CV_16U, 1000.0);
+  EXPECT_FALSE(fe.process(wrong_type).tracked);
+  RgbdFrame empty;
+  EXPECT_FALSE(fe.process(empty).tracked);
+  RgbdFrame no_color = frame(4);
+  no_color.rgb = cv::Mat();
+  EXPECT_TRUE(fe.process(no_color).tracked) << "depth alone is enough to track";
+  EXPECT_TRUE(fe.process(frame(5)).tracked);
+}
+
+TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
+  const std::string data = test::tempDir("seq"), out = test::tempDir("out");
+  drv::SyntheticParams sp;
+  sp.frames = 12;
+  sp.camera = kCam;
+  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  // Corrupt the 6th color image.
+  std::string sixth;
+  {
+    std::ifstream in(data + "/rgb.txt");
+    std::string line;
+    int n = 0;
+    while (std::getline(in, line)) {
+      if (!line.empty() && line[0] != '#' && ++n == 6) sixth = line.substr(line.find(' ') + 1);
+    }
+  }
+  std::ofstream(data + "/" + sixth, std::ios::trunc) << "garbage";
+
+  RunOptions o;
+  o.dataset = data;
+  o.out_dir = out;
+  o.no_mesh_eval = true;
+  EXPECT_EQ(runCommand(o), 1) << "an unreadable frame stops the run unless skipping is asked";
+  EXPECT_TRUE(std::filesystem::exists(out + "/trajectory.txt")) << "what was mapped is still written";
+
+  o.skip_bad = true;
+  EXPECT_EQ(runCommand(o), 0);
+  std::ifstream summary(out + "/summary.txt");
+  const std::string text((std::istreambuf_iterator<char>(summary)), {});
+  EXPECT_NE(text.find("processed 11"), std::string::npos) << text;
+  EXPECT_NE(text.find("unreadable skipped 1"), std::string::npos) << text;
+  EXPECT_NE(text.find("ATE RMSE"), std::string::npos) << text;
+  EXPECT_TRUE(std::filesystem::file_size(out + "/mesh.ply") > 1000);
+}
+
+TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
+  RunOptions o;
+  o.dataset = "/nonexistent/dataset";
+  o.out_dir = test::tempDir("out");
+  EXPECT_EQ(runCommand(o), 2);
+  const std::string cfg = o.out_dir + "/bad.yaml";
+  std::ofstream(cfg) << "tsdf:\n  voxel: 1\n";
+  o.config = cfg;
+  EXPECT_EQ(runCommand(o), 2);
+}
+
+}  // namespace
+}  // namespace hxmap::rt

@@ -1,0 +1,137 @@
+#include <filesystem>
+
+#include <gtest/gtest.h>
+
+#include "hxmap/dataset/dataset.hpp"
+#include "hxmap/dataset/ply.hpp"
+#include "hxmap/dataset/synthetic.hpp"
+#include "hxmap/eval/triangle_bvh.hpp"
+#include "test_data.hpp"
+
+namespace hxmap::drv {
+namespace {
+
+const alg::PinholeCamera kCam{260, 260, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+
+TEST(Synthetic, ExactDepthLiesOnTheAnalyticSurface) {
+  const SyntheticScene scene = SyntheticScene::room();
+  SyntheticParams p;
+  p.noise = false;
+  p.frames = 40;
+  const Trajectory traj = syntheticTrajectory(p);
+  for (int i : {0, 20, 39}) {
+    const RenderedFrame f = renderFrame(scene, kCam, traj[i].T_world_cam, p, i);
+    int checked = 0;
+    double worst = 0;
+    for (int v = 0; v < kCam.height; v += 3) {
+      for (int u = 0; u < kCam.width; u += 3) {
+        const float z = f.depth.at<float>(v, u);
+        if (z <= 0) continue;
+        const Eigen::Vector3d p_world =
+            traj[i].T_world_cam * kCam.backproject(static_cast<float>(u), static_cast<float>(v), z).cast<double>();
+        worst = std::max(worst, static_cast<double>(std::abs(scene.sdf(p_world.cast<float>()))));
+        ++checked;
+      }
+    }
+    EXPECT_GT(checked, 5000);
+    // Float ray casting at up to 5 m: within 0.3 mm.
+    EXPECT_LT(worst, 3e-4) << "frame " << i << ": |sdf| of back-projected depth (m)";
+  }
+}
+
+TEST(Synthetic, GroundTruthMeshMatchesTheSdf) {
+  const SyntheticScene scene = SyntheticScene::room();
+  const alg::TriangleMesh mesh = scene.mesh();
+  // Mesh vertices lie on the surface, or inside another solid where
+  // primitives touch (a leg under the table top): never in free space.
+  size_t on_surface = 0;
+  for (const auto& v : mesh.vertices) {
+    const float d = scene.sdf(v);
+    EXPECT_LT(d, 1e-4f);
+    on_surface += std::abs(d) < 1e-4f;
+  }
+  EXPECT_GT(on_surface, mesh.vertices.size() * 3 / 4);  // the rest: caps buried in the floor and table
+  // Surface points from rendering are within 1 mm of the mesh.
+  const alg::TriangleBvh bvh(mesh);
+  SyntheticParams p;
+  p.noise = false;
+  const auto traj = syntheticTrajectory(p);
+  const RenderedFrame f = renderFrame(scene, kCam, traj[10].T_world_cam, p, 10);
+  double worst_mesh = 0;
+  for (int v = 0; v < kCam.height; v += 7) {
+    for (int u = 0; u < kCam.width; u += 7) {
+      const float z = f.depth.at<float>(v, u);
+      if (z <= 0) continue;
+      const Eigen::Vector3f pw = (traj[10].T_world_cam.cast<float>() * kCam.backproject(u, v, z));
+      worst_mesh = std::max(worst_mesh, static_cast<double>(bvh.distance(pw)));
+    }
+  }
+  EXPECT_LT(worst_mesh, 1e-3);
+}
+
+TEST(Synthetic, NoiseModelIsDeterministicAndKinectLike) {
+  const SyntheticScene scene = SyntheticScene::room();
+  SyntheticParams p;
+  p.seed = 7;
+  const auto traj = syntheticTrajectory(p);
+  const RenderedFrame a = renderFrame(scene, kCam, traj[5].T_world_cam, p, 5);
+  const RenderedFrame b = renderFrame(scene, kCam, traj[5].T_world_cam, p, 5);
+  EXPECT_EQ(cv::norm(a.depth, b.depth, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(a.rgb, b.rgb, cv::NORM_INF), 0.0);
+  // Noise grows with z^2: compare error spread near 1.5 m and near 3 m.
+  std::vector<double> near, far;
+  int invalid = 0, valid_true = 0;
+  for (int v = 0; v < kCam.height; ++v) {
+    for (int u = 0; u < kCam.width; ++u) {
+      const float zt = a.depth_true.at<float>(v, u), zn = a.depth.at<float>(v, u);
+      if (zt <= 0) continue;
+      ++valid_true;
+      if (zn <= 0) {
+        ++invalid;
+        continue;
+      }
+      if (zt > 1.3f && zt < 1.7f) near.push_back(zn - zt);
+      if (zt > 2.8f && zt < 3.2f) far.push_back(zn - zt);
+    }
+  }
+  auto rms = [](const std::vector<double>& e) {
+    double s = 0;
+    for (double x : e) s += x * x;
+    return std::sqrt(s / std::max<size_t>(1, e.size()));
+  };
+  ASSERT_GT(near.size(), 100u);
+  ASSERT_GT(far.size(), 100u);
+  EXPECT_GT(rms(far), 2.0 * rms(near));
+  EXPECT_LT(rms(near), 0.01);
+  EXPECT_GT(invalid, 0) << "edges and grazing angles must drop pixels";
+  EXPECT_LT(invalid, valid_true / 5);
+}
+
+TEST(Synthetic, WritesTumLayoutThatReadsBack) {
+  const std::string dir = test::tempDir("seq");
+  SyntheticParams p;
+  p.frames = 4;
+  p.camera = kCam;
+  ASSERT_TRUE(writeSyntheticSequence(dir, SyntheticScene::room(), p));
+  for (const char* f : {"rgb.txt", "depth.txt", "groundtruth.txt", "calibration.yaml", "gt_mesh.ply"}) {
+    EXPECT_TRUE(std::filesystem::exists(std::filesystem::path(dir) / f)) << f;
+  }
+  auto d = Dataset::open(dir);
+  ASSERT_TRUE(d) << d.message();
+  EXPECT_EQ((*d)->size(), 4u);
+  EXPECT_EQ((*d)->camera().width, 320);
+  ASSERT_EQ((*d)->groundTruth().size(), 4u);
+  const auto traj = syntheticTrajectory(p);
+  EXPECT_LT(((*d)->groundTruth()[3].T_world_cam.translation() - traj[3].T_world_cam.translation()).norm(), 1e-5);
+  auto f = (*d)->load(2);
+  ASSERT_TRUE(f) << f.message();
+  const RenderedFrame r = renderFrame(SyntheticScene::room(), kCam, traj[2].T_world_cam, p, 2);
+  // uint16 at 5000 per meter: within 0.1 mm of the rendered depth.
+  EXPECT_LT(cv::norm(f->depth, r.depth, cv::NORM_INF), 1.01e-4);
+  auto mesh = readPly(dir + "/gt_mesh.ply");
+  ASSERT_TRUE(mesh) << mesh.message();
+  EXPECT_EQ(mesh->triangles.size(), SyntheticScene::room().mesh().triangles.size());
+}
+
+}  // namespace
+}  // namespace hxmap::drv

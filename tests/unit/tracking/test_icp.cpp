@@ -1,0 +1,104 @@
+#include <gtest/gtest.h>
+
+#include "hxmap/tracking/icp.hpp"
+#include "hxmap/tsdf/integrate.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+#include "synthetic_fixture.hpp"
+
+namespace hxmap::alg {
+namespace {
+
+class IcpTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    scene_ = drv::SyntheticScene::room();
+    drv::SyntheticParams sp;
+    sp.frames = 60;
+    traj_ = drv::syntheticTrajectory(sp);
+  }
+
+  // Map from exact frames at ground-truth poses [first, last].
+  TsdfMap buildMap(int first, int last, double voxel_m) {
+    TsdfParams tp;
+    tp.voxel_size_m = voxel_m;
+    tp.truncation_m = 4 * voxel_m;
+    TsdfMap map(tp);
+    for (int i = first; i <= last; i += 2) {
+      const auto f = test::syntheticFrame(scene_, cam_, traj_[i].T_world_cam);
+      const auto pre = preprocessFrame(f, cam_, pp_);
+      integrate(map, {pre.depth_m, pre.rgb, pre.levels[0].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
+    }
+    return map;
+  }
+
+  std::vector<ModelView> modelAt(const TsdfMap& map, const Eigen::Isometry3d& T) {
+    std::vector<ModelView> model{raycast(map, cam_, T.cast<float>(), RaycastParams{})};
+    for (int l = 1; l < 3; ++l) model.push_back(subsampleView(model.back()));
+    return model;
+  }
+
+  drv::SyntheticScene scene_;
+  Trajectory traj_;
+  PinholeCamera cam_;
+  PreprocessParams pp_;
+};
+
+TEST_F(IcpTest, RecoversKnownPerturbation) {
+  const TsdfMap map = buildMap(20, 40, 0.01);
+  const Eigen::Isometry3d T_ref = traj_[30].T_world_cam;
+  Vector6d xi;
+  xi << 0.01, -0.008, 0.012, 0.02, -0.015, 0.01;  // ~0.9 deg, ~2.7 cm
+  const Eigen::Isometry3d T_true = expSE3(xi) * T_ref;
+  const auto frame = test::syntheticFrame(scene_, cam_, T_true);
+  const auto pre = preprocessFrame(frame, cam_, pp_);
+  TrackingParams tp;
+  tp.iterations_level0 = 10;
+  const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp);
+  ASSERT_TRUE(r.ok) << r.failure;
+  const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
+  EXPECT_LT(translationNorm(E), 0.001) << "translation error (m)";
+  EXPECT_LT(rotationAngle(E) * 180.0 / M_PI, 0.1) << "rotation error (deg)";
+}
+
+TEST_F(IcpTest, PhotometricTermAloneRecoversPerturbation) {
+  // The photometric term weighted far above point-to-plane must recover the
+  // motion between two exact frames by itself.
+  const TsdfMap map = buildMap(20, 40, 0.01);
+  const Eigen::Isometry3d T_ref = traj_[30].T_world_cam;
+  Vector6d xi;
+  xi << 0.004, -0.003, 0.005, 0.01, -0.008, 0.006;
+  const Eigen::Isometry3d T_true = expSE3(xi) * T_ref;
+  const auto ref = preprocessFrame(test::syntheticFrame(scene_, cam_, T_ref), cam_, pp_);
+  const auto pre = preprocessFrame(test::syntheticFrame(scene_, cam_, T_true), cam_, pp_);
+  TrackingParams tp;
+  tp.iterations_level0 = 15;
+  tp.photometric_scale_m = 100.0;
+  tp.max_rms_residual_m = 1.0;
+  const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp, {&ref, T_ref});
+  const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
+  EXPECT_LT(translationNorm(E), 0.002) << "translation error (m)";
+  EXPECT_LT(rotationAngle(E) * 180.0 / M_PI, 0.1) << "rotation error (deg)";
+}
+
+TEST_F(IcpTest, ReportsFailureWithoutDepth) {
+  const TsdfMap map = buildMap(20, 24, 0.02);
+  auto frame = test::syntheticFrame(scene_, cam_, traj_[22].T_world_cam);
+  frame.depth.setTo(0);
+  const auto pre = preprocessFrame(frame, cam_, pp_);
+  const IcpResult r = trackPointToPlane(pre, modelAt(map, traj_[22].T_world_cam), traj_[22].T_world_cam, {});
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.failure.find("inliers"), std::string::npos) << r.failure;
+}
+
+TEST(Keyframes, MotionAndTime) {
+  TrackingParams p;
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d moved = I;
+  moved.translation().x() = 0.2;
+  EXPECT_TRUE(isNewKeyframe(I, moved, 0, 1, p));
+  EXPECT_FALSE(isNewKeyframe(I, I, 0, 100'000'000, p));
+  EXPECT_TRUE(isNewKeyframe(I, I, 0, 2'000'000'000, p));
+}
+
+}  // namespace
+}  // namespace hxmap::alg

@@ -1,0 +1,149 @@
+#include <gtest/gtest.h>
+
+#include "hxmap/dataset/synthetic.hpp"
+#include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/tsdf/integrate.hpp"
+#include "hxmap/tsdf/mesh_extract.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+
+namespace hxmap::alg {
+namespace {
+
+const PinholeCamera kCam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+
+TsdfParams params(double voxel) {
+  TsdfParams p;
+  p.voxel_size_m = voxel;
+  p.truncation_m = 4 * voxel;
+  return p;
+}
+
+DepthObservation observation(const drv::SyntheticScene& scene, const Eigen::Isometry3d& T, bool noise, int index) {
+  drv::SyntheticParams sp;
+  sp.noise = noise;
+  const auto f = drv::renderFrame(scene, kCam, T, sp, index);
+  const auto pre = preprocessFrame({0, 0, f.rgb, f.depth}, kCam, PreprocessParams{});
+  return {pre.depth_m, pre.rgb, pre.levels[0].confidence, kCam, T.cast<float>()};
+}
+
+TEST(TsdfIntegration, OptimizedKernelAgreesWithReference) {
+  const auto scene = drv::SyntheticScene::room();
+  drv::SyntheticParams sp;
+  const auto traj = drv::syntheticTrajectory(sp);
+  TsdfMap fast(params(0.02)), ref(params(0.02));
+  for (int i : {0, 15, 30}) {
+    const auto obs = observation(scene, traj[i].T_world_cam, true, i);
+    const auto a = integrate(fast, obs);
+    const auto b = integrateReference(ref, obs);
+    EXPECT_EQ(a.blocks_in_band, b.blocks_in_band);
+  }
+  ASSERT_EQ(fast.blockCount(), ref.blockCount());
+  size_t voxels = 0, mismatched = 0;
+  double worst_sdf = 0;
+  for (size_t b = 0; b < fast.blockCount(); ++b) {
+    ASSERT_EQ(fast.key(b), ref.key(b));
+    for (int i = 0; i < kBlockVoxels; ++i) {
+      const Voxel &x = fast.block(b).voxels[i], &y = ref.block(b).voxels[i];
+      if (x.weight == 0 && y.weight == 0) continue;
+      ++voxels;
+      // A voxel projecting exactly between two pixels may round to either
+      // in float vs double: allow a handful of such voxels.
+      if (std::abs(x.weight - y.weight) > 1e-5f || x.updates != y.updates) {
+        ++mismatched;
+        continue;
+      }
+      worst_sdf = std::max(worst_sdf, static_cast<double>(std::abs(x.sdf_m - y.sdf_m)));
+    }
+  }
+  EXPECT_GT(voxels, 100000u);
+  EXPECT_LT(mismatched, voxels / 10000 + 1) << "of " << voxels;
+  EXPECT_LT(worst_sdf, 1e-5) << "m";
+}
+
+// A scene of one primitive seen from several sides; returns the map.
+TsdfMap mapOf(const drv::Primitive& prim, double voxel, const Eigen::Vector3d& center, double distance) {
+  drv::SyntheticScene scene;
+  scene.mutablePrimitives().push_back(prim);
+  TsdfMap map(params(voxel));
+  for (int k = 0; k < 8; ++k) {
+    const double a = 2 * M_PI * k / 8;
+    const Eigen::Vector3d eye = center + distance * Eigen::Vector3d(std::cos(a), std::sin(a), 0.6).normalized();
+    const Eigen::Vector3d f = (center - eye).normalized();
+    const Eigen::Vector3d r = f.cross(Eigen::Vector3d::UnitZ()).normalized();
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear().col(0) = r;
+    T.linear().col(1) = f.cross(r);
+    T.linear().col(2) = f;
+    T.translation() = eye;
+    integrate(map, observation(scene, T, false, k));
+  }
+  return map;
+}
+
+TEST(TsdfIntegration, SphereRecoveredWithinHalfAVoxel) {
+  for (double voxel : {0.01, 0.02}) {
+    drv::Primitive sphere;
+    sphere.kind = drv::Primitive::Kind::kSphere;
+    sphere.a = Eigen::Vector3f(0.1f, -0.2f, 0.3f);
+    sphere.radius = 0.25f;
+    const TsdfMap map = mapOf(sphere, voxel, sphere.a.cast<double>(), 1.2);
+    const TriangleMesh mesh = extractMesh(map, MeshParams{});
+    ASSERT_GT(mesh.vertices.size(), 1000u);
+    double worst = 0, sum = 0;
+    for (const auto& v : mesh.vertices) {
+      const double e = std::abs((v - sphere.a).norm() - sphere.radius);
+      worst = std::max(worst, e);
+      sum += e;
+    }
+    EXPECT_LT(sum / mesh.vertices.size(), 0.1 * voxel) << "mean error at voxel " << voxel;
+    EXPECT_LT(worst, 0.5 * voxel) << "worst error at voxel " << voxel;
+  }
+}
+
+TEST(TsdfIntegration, PlaneRecoveredWithinHalfAVoxelByRaycast) {
+  drv::Primitive floor;  // a large slab, top face at z = 0.013 (off the voxel grid)
+  floor.kind = drv::Primitive::Kind::kBox;
+  floor.a = Eigen::Vector3f(0, 0, -0.487f);
+  floor.b = Eigen::Vector3f(3, 3, 0.5f);
+  const double voxel = 0.02;
+  const TsdfMap map = mapOf(floor, voxel, {0, 0, 0.013}, 1.5);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // looking down
+  T.translation() = Eigen::Vector3d(0, 0, 1.2);
+  const ModelView view = raycast(map, kCam, T.cast<float>(), RaycastParams{});
+  ASSERT_GT(view.valid_pixels, kCam.width * kCam.height / 2);
+  double worst = 0;
+  for (int v = 0; v < kCam.height; ++v) {
+    for (int u = 0; u < kCam.width; ++u) {
+      if (view.depth.at<float>(v, u) <= 0) continue;
+      worst = std::max(worst, std::abs(static_cast<double>(view.vertex_world.at<cv::Vec3f>(v, u)[2]) - 0.013));
+      const cv::Vec3f n = view.normal_world.at<cv::Vec3f>(v, u);
+      if (n[2] != 0) EXPECT_GT(n[2], 0.99f);
+    }
+  }
+  EXPECT_LT(worst, 0.5 * voxel);
+}
+
+TEST(TsdfMap, AllocatesOnlyTheBandAndAccountsMemory) {
+  drv::Primitive sphere;
+  sphere.kind = drv::Primitive::Kind::kSphere;
+  sphere.radius = 0.3f;
+  const TsdfMap map = mapOf(sphere, 0.02, Eigen::Vector3d::Zero(), 1.2);
+  const float band = map.truncation() + map.blockSize() * std::sqrt(3.0f);
+  for (size_t b = 0; b < map.blockCount(); ++b) {
+    const Eigen::Vector3f center = (map.key(b).cast<float>() + Eigen::Vector3f::Constant(0.5f)) * map.blockSize();
+    EXPECT_LT(std::abs(center.norm() - sphere.radius), band);
+  }
+  const MapMemory mem = map.memory();
+  EXPECT_EQ(mem.blocks, map.blockCount());
+  EXPECT_GE(mem.bytes, map.blockCount() * sizeof(VoxelBlock));
+  // Update statistics are kept for the UF indicator.
+  size_t with_stats = 0;
+  for (size_t b = 0; b < map.blockCount(); ++b) {
+    for (const auto& v : map.block(b).voxels) with_stats += v.updates > 1;
+  }
+  EXPECT_GT(with_stats, 1000u);
+}
+
+}  // namespace
+}  // namespace hxmap::alg
