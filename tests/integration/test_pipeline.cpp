@@ -83,7 +83,8 @@ TEST_F(Pipeline, CorruptFramesNeverCrash) {
     }
   }
   nan.depth.at<float>(5, 5) = -1.0f;
-  EXPECT_TRUE(fe.process(nan).tracked) << "sparse NaN/inf depth must be ignored, not fatal";
+  const FrameResult rn = fe.process(nan);
+  EXPECT_TRUE(rn.tracked) << "sparse NaN/inf depth must be ignored, not fatal: " << rn.failure;
   RgbdFrame wrong_size = frame(2);
   wrong_size.depth = cv::Mat(10, 10, CV_32F, cv::Scalar(1.0f));
   EXPECT_FALSE(fe.process(wrong_size).tracked);
@@ -95,7 +96,8 @@ TEST_F(Pipeline, CorruptFramesNeverCrash) {
   RgbdFrame no_color = frame(4);
   no_color.rgb = cv::Mat();
   EXPECT_TRUE(fe.process(no_color).tracked) << "depth alone is enough to track";
-  EXPECT_TRUE(fe.process(frame(5)).tracked);
+  const FrameResult r5 = fe.process(frame(5));
+  EXPECT_TRUE(r5.tracked) << r5.failure;
 }
 
 TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {

@@ -180,6 +180,7 @@ PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& c
   const bool rgb_ok = frame.rgb.type() == CV_8UC3 && frame.rgb.size() == size;
   out.depth_m = cv::Mat(size, CV_32F, cv::Scalar(0));
   out.rgb = rgb_ok ? frame.rgb : cv::Mat(size, CV_8UC3, cv::Scalar(0, 0, 0));
+  out.has_color = rgb_ok;
   if (depth_ok) {
     const float lo = static_cast<float>(params.min_depth_m), hi = static_cast<float>(params.max_depth_m);
     for (int v = 0; v < size.height; ++v) {

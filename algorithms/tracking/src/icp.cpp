@@ -140,7 +140,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   const int iterations[3] = {params.iterations_level0, params.iterations_level1, params.iterations_level2};
   Eigen::Isometry3d T = T_init;
   Accumulation last;
-  const bool use_photometric = reference.frame != nullptr && params.photometric_scale_m > 0;
+  const bool use_photometric = reference.frame != nullptr && params.photometric_scale_m > 0 &&
+                               frame.has_color && reference.frame->has_color;
   for (int l = levels - 1; l >= 0; --l) {
     const int iters = l < 3 ? iterations[l] : params.iterations_level2;
     for (int it = 0; it < iters; ++it) {

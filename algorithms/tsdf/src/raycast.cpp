@@ -2,6 +2,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <limits>
 
 namespace hxmap::alg {
 
@@ -14,6 +15,82 @@ float blockExit(const TsdfMap& map, const BlockKey& key, const Eigen::Vector3f& 
   const Eigen::Vector3f t0 = (lo - o).cwiseProduct(inv_dir), t1 = (hi - o).cwiseProduct(inv_dir);
   return t0.cwiseMax(t1).minCoeff();
 }
+
+constexpr int kTile = 16;  // pixels per side of a depth-bounds tile
+
+// Per tile of kTile x kTile pixels, the depth range [near, far] covered by
+// allocated blocks (their corners projected), so rays start next to the
+// surface instead of at the camera. Tiles no block projects into get
+// near > far and are skipped.
+void tileBounds(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3f& T_cam_world, float max_z,
+                std::vector<float>& near, std::vector<float>& far, int tw, int th) {
+  near.assign(static_cast<size_t>(tw * th), std::numeric_limits<float>::max());
+  far.assign(static_cast<size_t>(tw * th), 0.0f);
+  const float bs = map.blockSize();
+  for (size_t b = 0; b < map.blockCount(); ++b) {
+    const Eigen::Vector3f lo = map.key(b).cast<float>() * bs;
+    float zmin = std::numeric_limits<float>::max(), zmax = 0;
+    float umin = 1e9f, umax = -1e9f, vmin = 1e9f, vmax = -1e9f;
+    bool behind = false;
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3f p = T_cam_world * (lo + bs * Eigen::Vector3f(c & 1, (c >> 1) & 1, (c >> 2) & 1));
+      if (p.z() < 0.05f) {
+        behind = true;
+        break;
+      }
+      zmin = std::min(zmin, p.z());
+      zmax = std::max(zmax, p.z());
+      const Eigen::Vector2f uv = cam.project(p);
+      umin = std::min(umin, uv.x());
+      umax = std::max(umax, uv.x());
+      vmin = std::min(vmin, uv.y());
+      vmax = std::max(vmax, uv.y());
+    }
+    if (zmin > max_z) continue;
+    if (behind) {  // straddles the camera plane: the whole image from the camera on
+      zmin = 0.0f;
+      umin = vmin = 0.0f;
+      umax = static_cast<float>(cam.width);
+      vmax = static_cast<float>(cam.height);
+      zmax = max_z;
+    }
+    const int t0x = std::max(0, static_cast<int>(umin) / kTile), t1x = std::min(tw - 1, static_cast<int>(umax) / kTile);
+    const int t0y = std::max(0, static_cast<int>(vmin) / kTile), t1y = std::min(th - 1, static_cast<int>(vmax) / kTile);
+    if (umax < 0 || vmax < 0) continue;
+    for (int ty = t0y; ty <= t1y; ++ty) {
+      for (int tx = t0x; tx <= t1x; ++tx) {
+        const size_t i = static_cast<size_t>(ty * tw + tx);
+        near[i] = std::min(near[i], zmin);
+        far[i] = std::max(far[i], zmax);
+      }
+    }
+  }
+}
+
+// Nearest-voxel reads along one ray with the last block cached.
+class RayAccessor {
+ public:
+  explicit RayAccessor(const TsdfMap& map) : map_(map) {}
+  /// False when p's block is not allocated (then `key` is that block).
+  bool voxel(const Eigen::Vector3f& p, const Voxel*& out, BlockKey& key) {
+    const Eigen::Vector3i g = map_.voxelOf(p);
+    key = BlockKey(floorDiv(g.x(), kBlockSide), floorDiv(g.y(), kBlockSide), floorDiv(g.z(), kBlockSide));
+    if (!(key == key_)) {
+      key_ = key;
+      const int32_t b = map_.find(key);
+      block_ = b >= 0 ? &map_.block(b) : nullptr;
+    }
+    if (block_ == nullptr) return false;
+    const Eigen::Vector3i l = g - key * kBlockSide;
+    out = &block_->voxels[VoxelBlock::index(l.x(), l.y(), l.z())];
+    return true;
+  }
+
+ private:
+  const TsdfMap& map_;
+  BlockKey key_{std::numeric_limits<int>::min(), 0, 0};
+  const VoxelBlock* block_ = nullptr;
+};
 
 }  // namespace
 
@@ -31,53 +108,79 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
   const float step_factor = static_cast<float>(params.step_factor);
   const Eigen::Vector3f origin = T_world_cam.translation();
   const Eigen::Matrix3f R = T_world_cam.linear();
+  const int tw = (cam.width + kTile - 1) / kTile, th = (cam.height + kTile - 1) / kTile;
+  std::vector<float> tile_near, tile_far;
+  tileBounds(map, cam, T_world_cam.inverse(), static_cast<float>(params.max_depth_m), tile_near, tile_far, tw, th);
   std::atomic<int> valid{0};
   parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
     int local_valid = 0;
+    RayAccessor access(map);
     for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
       float* drow = view.depth.ptr<float>(v);
       auto* vrow = view.vertex_world.ptr<cv::Vec3f>(v);
       for (int u = 0; u < cam.width; ++u) {
+        const size_t tile = static_cast<size_t>((v / kTile) * tw + u / kTile);
+        if (tile_near[tile] > tile_far[tile]) continue;
         const Eigen::Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
         const float len = ray_cam.norm();
         const Eigen::Vector3f dir = R * ray_cam / len;
         const Eigen::Vector3f inv_dir = dir.cwiseInverse();
-        float t = static_cast<float>(params.min_depth_m) * len;
-        const float t_max = static_cast<float>(params.max_depth_m) * len;
+        // Depth z along the optical axis is t / len along the ray.
+        float t = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
+        const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
         float prev_t = -1, prev_sdf = 0;
         float hit = -1;
         int guard = 0;
         while (t < t_max && ++guard < 4096) {
           const Eigen::Vector3f p = origin + t * dir;
-          const BlockKey key = map.blockOf(p);
-          if (map.find(key) < 0) {
+          const Voxel* vx = nullptr;
+          BlockKey key;
+          if (!access.voxel(p, vx, key)) {
             t = std::max(t + 0.5f * vs, blockExit(map, key, origin, inv_dir) + 1e-4f);
             prev_t = -1;
             continue;
           }
-          float sdf = 0;
-          if (!map.sample(p, min_w, sdf)) {
-            t += 0.5f * vs;
+          if (vx->weight <= min_w) {
+            t += vs;
             prev_t = -1;
             continue;
           }
+          const float sdf = vx->sdf_m;
           if (prev_t >= 0 && prev_sdf > 0 && sdf <= 0) {
-            float th = prev_t + (t - prev_t) * prev_sdf / (prev_sdf - sdf);
-            // One secant refinement on the interpolated point.
+            // Crossing between prev_t and t (nearest-voxel values). Trilinear
+            // samples at both ends; where they do not bracket the surface
+            // (it may lie up to a voxel outside), move the ends outwards in
+            // half-voxel steps. Typically two or three samples per ray.
+            float ta = prev_t, tb = t, sa = 0, sb = 0;
+            bool ok_a = map.sample(origin + ta * dir, min_w, sa);
+            for (int k = 0; k < 3 && ok_a && sa <= 0; ++k) {
+              ta -= 0.5f * vs;
+              ok_a = map.sample(origin + ta * dir, min_w, sa);
+            }
+            bool ok_b = map.sample(origin + tb * dir, min_w, sb);
+            for (int k = 0; k < 3 && ok_b && sb > 0; ++k) {
+              tb += 0.5f * vs;
+              ok_b = map.sample(origin + tb * dir, min_w, sb);
+            }
+            if (!(ok_a && ok_b && sa > 0 && sb <= 0)) ta = -1;
+            // No trilinear bracket (the edge of the observed surface, where
+            // neighbours are missing): no hit rather than an imprecise one.
+            if (ta < 0) break;
+            float th_ = ta + (tb - ta) * sa / (sa - sb);
             float s_mid = 0;
-            if (map.sample(origin + th * dir, min_w, s_mid)) {
-              if (s_mid > 0 && sdf < 0) {
-                th = th + (t - th) * s_mid / (s_mid - sdf);
-              } else if (s_mid < 0 && prev_sdf > 0) {
-                th = prev_t + (th - prev_t) * prev_sdf / (prev_sdf - s_mid);
+            if (map.sample(origin + th_ * dir, min_w, s_mid)) {
+              if (s_mid > 0 && sb < 0) {
+                th_ = th_ + (tb - th_) * s_mid / (s_mid - sb);
+              } else if (s_mid < 0 && sa > 0) {
+                th_ = ta + (th_ - ta) * sa / (sa - s_mid);
               }
             }
-            hit = th;
+            hit = th_;
             break;
           }
           prev_t = t;
           prev_sdf = sdf;
-          t += std::max(0.5f * vs, step_factor * std::min(std::abs(sdf), mu));
+          t += std::max(0.5f * vs, step_factor * (std::min(std::abs(sdf), mu) - 0.5f * vs));
         }
         if (hit < 0) continue;
         const Eigen::Vector3f p = origin + hit * dir;

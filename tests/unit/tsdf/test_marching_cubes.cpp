@@ -15,7 +15,9 @@ TEST(MarchingCubesTable, OnlyCrossingEdgesAndClosedLoops) {
       const bool a = (config >> kCubeEdges[e][0]) & 1, b = (config >> kCubeEdges[e][1]) & 1;
       EXPECT_NE(a, b) << "configuration " << config << " uses edge " << e << " without a sign change";
     }
-    if (config == 0 || config == 255) EXPECT_TRUE(tris.empty());
+    if (config == 0 || config == 255) {
+      EXPECT_TRUE(tris.empty());
+    }
   }
   EXPECT_EQ(marchingCubesTriangles(1).size(), 3u);  // one corner inside: one triangle
 }

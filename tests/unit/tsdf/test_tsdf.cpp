@@ -118,7 +118,9 @@ TEST(TsdfIntegration, PlaneRecoveredWithinHalfAVoxelByRaycast) {
       if (view.depth.at<float>(v, u) <= 0) continue;
       worst = std::max(worst, std::abs(static_cast<double>(view.vertex_world.at<cv::Vec3f>(v, u)[2]) - 0.013));
       const cv::Vec3f n = view.normal_world.at<cv::Vec3f>(v, u);
-      if (n[2] != 0) EXPECT_GT(n[2], 0.99f);
+      if (n[2] != 0) {
+        EXPECT_GT(n[2], 0.99f) << "pixel " << u << "," << v;
+      }
     }
   }
   EXPECT_LT(worst, 0.5 * voxel);

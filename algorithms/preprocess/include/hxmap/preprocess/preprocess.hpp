@@ -33,6 +33,7 @@ struct PreprocessedFrame {
   cv::Mat rgb;         ///< CV_8UC3
   cv::Mat intensity;   ///< CV_32F in [0, 1]
   std::vector<FrameLevel> levels;  ///< levels[0] is full resolution
+  bool has_color = false;          ///< false: rgb/intensity are black placeholders
   int valid_pixels = 0;            ///< valid depth pixels at level 0
   int rejected_pixels = 0;         ///< non-finite, negative or out-of-range depth removed
 };
