@@ -3,6 +3,8 @@
 find_package(PkgConfig QUIET)
 set(HXMAP_SUMMARY_LINES "")
 
+# Parts marked "(not implemented yet)" are detected so that the build is
+# ready for them; their code has not landed.
 macro(hxmap_optional var description found reason)
   if(${found})
     option(${var} "${description}" ON)
@@ -27,21 +29,21 @@ if(PkgConfig_FOUND)
   pkg_check_modules(LIBCAMERA QUIET IMPORTED_TARGET libcamera)
   pkg_check_modules(OPENNI2 QUIET IMPORTED_TARGET libopenni2)
 endif()
-hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver" LIBV4L2_FOUND
+hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver (not implemented yet)" LIBV4L2_FOUND
   "libv4l2 not found (apt install libv4l-dev)")
-hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver" OPENNI2_FOUND
+hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver (not implemented yet)" OPENNI2_FOUND
   "OpenNI2 not found (apt install libopenni2-dev)")
-hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver" LIBCAMERA_FOUND
+hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver (not implemented yet)" LIBCAMERA_FOUND
   "libcamera not found (apt install libcamera-dev)")
 find_package(CycloneDDS QUIET)
-hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing" CycloneDDS_FOUND
+hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing (not implemented yet)" CycloneDDS_FOUND
   "CycloneDDS not found (apt install cyclonedds-dev cyclonedds-tools)")
 find_package(TBB QUIET)
 hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
   "TBB not found (apt install libtbb-dev)")
 find_package(benchmark QUIET)
 find_package(Open3D QUIET)
-hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D peer in benchmarks" Open3D_FOUND
+hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D peer in benchmarks (not implemented yet)" Open3D_FOUND
   "Open3D not found (apt install libopen3d-dev)")
 
 function(hxmap_print_summary)

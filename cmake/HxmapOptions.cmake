@@ -16,6 +16,12 @@ if(HXMAP_SANITIZE)
   message(STATUS "hxmap: sanitizers: ${_san}")
 endif()
 
+if(HXMAP_FUZZ)
+  # Coverage for the libraries the fuzz targets call; the targets add -fsanitize=fuzzer.
+  add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()
+
 # hxmap_module(NAME DEPS...): a static library algorithms/<name> with a public
 # include/ folder and sources in src/.
 function(hxmap_module name)

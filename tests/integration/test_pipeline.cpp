@@ -148,3 +148,39 @@ TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
 
 }  // namespace
 }  // namespace hxmap::rt
+
+namespace hxmap::rt {
+namespace {
+
+std::string writeText(const std::string& path, const std::string& text) {
+  std::ofstream(path) << text;
+  return path;
+}
+
+TEST(EvalCommand, IdenticalTrajectoriesAndRigidOffset) {
+  const std::string dir = test::tempDir("eval");
+  const std::string gt = writeText(dir + "/gt.txt",
+                                   "# t tx ty tz qx qy qz qw\n"
+                                   "1.0 0 0 0 0 0 0 1\n1.1 1 0 0 0 0 0 1\n1.2 1 1 0 0 0 0 1\n1.3 0 1 1 0 0 0 1\n");
+  // The same path moved by 1 m along z and turned 90 degrees about z.
+  const std::string moved = writeText(dir + "/moved.txt",
+                                      "1.0 0 0 1 0 0 0.7071068 0.7071068\n1.1 0 1 1 0 0 0.7071068 0.7071068\n"
+                                      "1.2 -1 1 1 0 0 0.7071068 0.7071068\n1.3 -1 0 2 0 0 0.7071068 0.7071068\n");
+  EvalOptions o;
+  o.traj = gt;
+  o.gt_traj = gt;
+  ::testing::internal::CaptureStdout();
+  EXPECT_EQ(evalCommand(o), 0);
+  std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_NE(out.find("ATE RMSE 0.00 cm"), std::string::npos) << out;
+  o.traj = moved;
+  ::testing::internal::CaptureStdout();
+  EXPECT_EQ(evalCommand(o), 0);
+  out = ::testing::internal::GetCapturedStdout();
+  EXPECT_NE(out.find("ATE RMSE 0.00 cm"), std::string::npos) << out;
+  o.traj = dir + "/missing.txt";
+  EXPECT_EQ(evalCommand(o), 2);
+}
+
+}  // namespace
+}  // namespace hxmap::rt

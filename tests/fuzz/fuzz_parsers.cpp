@@ -1,0 +1,21 @@
+// libFuzzer target for the dataset text parsers and the PLY reader:
+//   cmake -S . -B build-fuzz -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DHXMAP_FUZZ=ON
+//   ninja -C build-fuzz fuzz_parsers && build-fuzz/tests/fuzz_parsers -max_total_time=60
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "hxmap/dataset/parsers.hpp"
+#include "hxmap/dataset/ply.hpp"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  const std::string text(reinterpret_cast<const char*>(data), size);
+  for (bool skip : {false, true}) {
+    const hxmap::drv::ParseOptions o{skip};
+    (void)hxmap::drv::parseTumList(text, "fuzz", o);
+    (void)hxmap::drv::parseTumTrajectory(text, "fuzz", o);
+    (void)hxmap::drv::parseMatrixTrajectory(text, "fuzz", 33'333'333, o);
+  }
+  (void)hxmap::drv::parsePly(text, "fuzz");
+  return 0;
+}
