@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <map>
 #include <fstream>
-#include <regex>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -226,18 +226,36 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
   return Status::ok();
 }
 
+namespace {
+// "frame000012.jpg" with prefix "frame": true and number 12.
+bool numberedName(const std::string& name, const std::string& prefix, std::initializer_list<const char*> suffixes,
+                  long& number) {
+  if (name.rfind(prefix, 0) != 0) return false;
+  for (const char* suffix : suffixes) {
+    const std::string sfx(suffix);
+    if (name.size() <= prefix.size() + sfx.size() || name.compare(name.size() - sfx.size(), sfx.size(), sfx) != 0) {
+      continue;
+    }
+    const std::string digits = name.substr(prefix.size(), name.size() - prefix.size() - sfx.size());
+    if (digits.empty() || digits.size() > 9 || digits.find_first_not_of("0123456789") != std::string::npos) return false;
+    number = std::stol(digits);
+    return true;
+  }
+  return false;
+}
+}  // namespace
+
 Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
   const fs::path dir(d.dir_);
   const fs::path results = dir / "results";
   std::error_code ec;
   if (!fs::is_directory(results, ec)) return Error{results.string() + ": folder does not exist (Replica layout)"};
-  const std::regex frame_re(R"(frame(\d+)\.(jpg|png))"), depth_re(R"(depth(\d+)\.png)");
   std::map<long, std::string> colors, depths;
   for (const auto& entry : fs::directory_iterator(results, ec)) {
     const std::string f = entry.path().filename().string();
-    std::smatch m;
-    if (std::regex_match(f, m, frame_re)) colors[std::stol(m[1])] = entry.path().string();
-    if (std::regex_match(f, m, depth_re)) depths[std::stol(m[1])] = entry.path().string();
+    long number = 0;
+    if (numberedName(f, "frame", {".jpg", ".png"}, number)) colors[number] = entry.path().string();
+    if (numberedName(f, "depth", {".png"}, number)) depths[number] = entry.path().string();
   }
   if (colors.empty()) return Error{results.string() + ": no frameNNNNNN.jpg images"};
   const int64_t period_ns = 1'000'000'000LL / 30;
