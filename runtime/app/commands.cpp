@@ -219,7 +219,13 @@ int runCommand(const RunOptions& o) {
       spdlog::error("{}", gt_mesh.message());
     } else {
       spdlog::info("scoring the mesh against {} ...", gt_mesh_path.string());
-      alg::ObservedBy observed{cam, ds.groundTruth(), c.preprocess.max_depth_m};
+      // Ground truth counts as observed only from the poses of the frames
+      // this run processed (a --max-frames run sees less of the scene).
+      alg::ObservedBy observed{cam, {}, c.preprocess.max_depth_m};
+      const int64_t first_ns = ds.stamp(frames.front()) - 50'000'000, last_ns = ds.stamp(frames.back()) + 50'000'000;
+      for (const auto& p : ds.groundTruth()) {
+        if (p.stamp_ns >= first_ns && p.stamp_ns <= last_ns) observed.poses.push_back(p);
+      }
       const auto mp = meshParams(c.eval);
       const auto m = alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, parallel);
       summary += meshMetricsText(m, mp);

@@ -124,14 +124,34 @@ struct EdgeKeyEq {
   bool operator()(const Eigen::Vector4i& a, const Eigen::Vector4i& b) const { return a == b; }
 };
 
-// Emits triangles for one cube given corner values; `vertex(edge)` returns the
-// welded vertex index of a cube edge.
-template <typename VertexFn>
-void emitCube(const float s[8], TriangleMesh& mesh, VertexFn&& vertex) {
+using WeldMap = std::unordered_map<Eigen::Vector4i, int, EdgeKeyHash, EdgeKeyEq>;
+
+// Emits the triangles of the cube whose first corner is grid point g (corner
+// values s), grid point i sitting at origin + i * spacing. Vertices are welded
+// by cube edge; `on_new_vertex(c0, c1, t)` runs for each new vertex (colors).
+template <typename OnNewVertex>
+void emitCube(const float s[8], const Eigen::Vector3i& g, const Eigen::Vector3f& origin, float spacing,
+              WeldMap& welded, TriangleMesh& mesh, OnNewVertex&& on_new_vertex) {
   int config = 0;
   for (int c = 0; c < 8; ++c) {
     if (s[c] < 0) config |= 1 << c;
   }
+  auto vertex = [&](int e) {
+    const int c0 = kCubeEdges[e][0], c1 = kCubeEdges[e][1];
+    const int axis = e / 4;
+    const Eigen::Vector3i g0 = g + Eigen::Vector3i(c0 & 1, (c0 >> 1) & 1, (c0 >> 2) & 1);
+    const Eigen::Vector4i key(g0.x(), g0.y(), g0.z(), axis);
+    auto it = welded.find(key);
+    if (it != welded.end()) return it->second;
+    const float t = s[c0] / (s[c0] - s[c1]);
+    Eigen::Vector3f p = origin + g0.cast<float>() * spacing;
+    p[axis] += t * spacing;
+    const int index = static_cast<int>(mesh.vertices.size());
+    mesh.vertices.push_back(p);
+    on_new_vertex(c0, c1, t);
+    welded.emplace(key, index);
+    return index;
+  };
   const auto& tris = table()[config];
   for (size_t i = 0; i < tris.size(); i += 3) {
     const int a = vertex(tris[i]), b = vertex(tris[i + 1]), c = vertex(tris[i + 2]);
@@ -146,9 +166,10 @@ const std::vector<int>& marchingCubesTriangles(int configuration) { return table
 
 TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
   TriangleMesh mesh;
-  std::unordered_map<Eigen::Vector4i, int, EdgeKeyHash, EdgeKeyEq> welded;
+  WeldMap welded;
   const float min_w = std::max(static_cast<float>(params.min_weight), 1e-6f);
   const float vs = map.voxelSize();
+  const Eigen::Vector3f voxel_origin = Eigen::Vector3f::Constant(0.5f * vs);  // voxel centers
   for (size_t b = 0; b < map.blockCount(); ++b) {
     const BlockKey key = map.key(b);
     // Neighbour blocks in +x, +y, +z combinations (index by bit mask).
@@ -180,27 +201,13 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
           }
           if (!ok || !neg || !pos) continue;
           const Eigen::Vector3i g = key * kBlockSide + Eigen::Vector3i(x, y, z);
-          emitCube(s, mesh, [&](int e) {
-            const int c0 = kCubeEdges[e][0], c1 = kCubeEdges[e][1];
-            const int axis = e / 4;
-            const Eigen::Vector3i g0 = g + Eigen::Vector3i(c0 & 1, (c0 >> 1) & 1, (c0 >> 2) & 1);
-            const Eigen::Vector4i ek(g0.x(), g0.y(), g0.z(), axis);
-            auto it = welded.find(ek);
-            if (it != welded.end()) return it->second;
-            const float t = s[c0] / (s[c0] - s[c1]);
-            Eigen::Vector3f p = (g0.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * vs;
-            p[axis] += t * vs;
-            const int index = static_cast<int>(mesh.vertices.size());
-            mesh.vertices.push_back(p);
-            if (params.with_colors) {
-              const Voxel& a = *corner[c0];
-              const Voxel& bb = *corner[c1];
-              mesh.colors.emplace_back(static_cast<uint8_t>(std::lround(a.r + t * (bb.r - a.r))),
-                                       static_cast<uint8_t>(std::lround(a.g + t * (bb.g - a.g))),
-                                       static_cast<uint8_t>(std::lround(a.b + t * (bb.b - a.b))));
-            }
-            welded.emplace(ek, index);
-            return index;
+          emitCube(s, g, voxel_origin, vs, welded, mesh, [&](int c0, int c1, float t) {
+            if (!params.with_colors) return;
+            const Voxel& a = *corner[c0];
+            const Voxel& b = *corner[c1];
+            mesh.colors.emplace_back(static_cast<uint8_t>(std::lround(a.r + t * (b.r - a.r))),
+                                     static_cast<uint8_t>(std::lround(a.g + t * (b.g - a.g))),
+                                     static_cast<uint8_t>(std::lround(a.b + t * (b.b - a.b))));
           });
         }
       }
@@ -212,7 +219,7 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
 TriangleMesh extractMeshDense(const std::vector<float>& sdf, const Eigen::Vector3i& dims,
                               const Eigen::Vector3f& origin, float spacing) {
   TriangleMesh mesh;
-  std::unordered_map<Eigen::Vector4i, int, EdgeKeyHash, EdgeKeyEq> welded;
+  WeldMap welded;
   auto at = [&](int x, int y, int z) { return sdf[(static_cast<size_t>(z) * dims.y() + y) * dims.x() + x]; };
   for (int z = 0; z + 1 < dims.z(); ++z) {
     for (int y = 0; y + 1 < dims.y(); ++y) {
@@ -226,22 +233,7 @@ TriangleMesh extractMeshDense(const std::vector<float>& sdf, const Eigen::Vector
           pos |= s[c] >= 0;
         }
         if (!ok || !neg || !pos) continue;
-        const Eigen::Vector3i g(x, y, z);
-        emitCube(s, mesh, [&](int e) {
-          const int c0 = kCubeEdges[e][0], c1 = kCubeEdges[e][1];
-          const int axis = e / 4;
-          const Eigen::Vector3i g0 = g + Eigen::Vector3i(c0 & 1, (c0 >> 1) & 1, (c0 >> 2) & 1);
-          const Eigen::Vector4i ek(g0.x(), g0.y(), g0.z(), axis);
-          auto it = welded.find(ek);
-          if (it != welded.end()) return it->second;
-          const float t = s[c0] / (s[c0] - s[c1]);
-          Eigen::Vector3f p = origin + g0.cast<float>() * spacing;
-          p[axis] += t * spacing;
-          const int index = static_cast<int>(mesh.vertices.size());
-          mesh.vertices.push_back(p);
-          welded.emplace(ek, index);
-          return index;
-        });
+        emitCube(s, Eigen::Vector3i(x, y, z), origin, spacing, welded, mesh, [](int, int, float) {});
       }
     }
   }
