@@ -17,7 +17,7 @@ struct Accumulation {
 };
 
 Accumulation accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Isometry3f& T,
-                        const TrackingParams& params) {
+                        const TrackingParams& params, int stride) {
   Accumulation acc;
   const Eigen::Isometry3f T_ref_world = model.T_world_cam.inverse();
   const Eigen::Isometry3f T_ref_cam = T_ref_world * T;
@@ -26,11 +26,11 @@ Accumulation accumulate(const FrameLevel& level, const ModelView& model, const E
   const float huber = static_cast<float>(params.huber_delta_m);
   const PinholeCamera& mc = model.camera;
   const int mw = mc.width, mh = mc.height;
-  for (int v = 0; v < level.vertex.rows; ++v) {
+  for (int v = 0; v < level.vertex.rows; v += stride) {
     const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
     const auto* nrow = level.normal.ptr<cv::Vec3f>(v);
     const float* crow = level.confidence.ptr<float>(v);
-    for (int u = 0; u < level.vertex.cols; ++u) {
+    for (int u = 0; u < level.vertex.cols; u += stride) {
       const cv::Vec3f& pc = vrow[u];
       if (pc[2] <= 0 || crow[u] <= 0) continue;
       const cv::Vec3f& nc = nrow[u];
@@ -145,7 +145,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   for (int l = levels - 1; l >= 0; --l) {
     const int iters = l < 3 ? iterations[l] : params.iterations_level2;
     for (int it = 0; it < iters; ++it) {
-      Accumulation acc = accumulate(frame.levels[l], model[l], T.cast<float>(), params);
+      Accumulation acc =
+          accumulate(frame.levels[l], model[l], T.cast<float>(), params, l == 0 ? params.icp_stride_level0 : 1);
       ++result.iterations;
       if (acc.inliers < 6) break;
       acc.H.triangularView<Eigen::Upper>() = acc.H.transpose();
@@ -164,7 +165,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     }
   }
   // Final evaluation at full resolution decides success.
-  last = accumulate(frame.levels[0], model[0], T.cast<float>(), params);
+  last = accumulate(frame.levels[0], model[0], T.cast<float>(), params, 1);
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum / last.inliers) : 0.0;
   last.H.triangularView<Eigen::Upper>() = last.H.transpose();

@@ -95,7 +95,9 @@ class RayAccessor {
 }  // namespace
 
 ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3f& T_world_cam,
-                  const RaycastParams& params, bool with_color, const ParallelFor& parallel) {
+                  const RaycastParams& params, bool with_color, const ParallelFor& parallel,
+                  const cv::Mat& depth_hint) {
+  const bool hinted = depth_hint.type() == CV_32FC1 && depth_hint.cols == cam.width && depth_hint.rows == cam.height;
   ModelView view;
   view.camera = cam;
   view.T_world_cam = T_world_cam;
@@ -125,8 +127,22 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         const float len = ray_cam.norm();
         const Eigen::Vector3f dir = R * ray_cam / len;
         const Eigen::Vector3f inv_dir = dir.cwiseInverse();
-        // Depth z along the optical axis is t / len along the ray.
-        float t = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
+        // Depth z along the optical axis is t / len along the ray. A hinted
+        // ray starts before the predicted surface; should its first sample
+        // lie behind a surface already, it starts over from the tile bound.
+        const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
+        float t = tile_start;
+        bool from_hint = false;
+        if (hinted) {
+          const float zh = depth_hint.ptr<float>(v)[u];
+          if (zh > 0.0f) {
+            const float start = (zh - mu - 2.0f * vs) * len;
+            if (start > t) {
+              t = start;
+              from_hint = true;
+            }
+          }
+        }
         const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
         float prev_t = -1, prev_sdf = 0;
         float hit = -1;
@@ -146,6 +162,14 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
             continue;
           }
           const float sdf = vx->sdf_m;
+          if (from_hint) {
+            from_hint = false;
+            if (sdf < 0) {  // started behind a surface
+              t = tile_start;
+              prev_t = -1;
+              continue;
+            }
+          }
           if (prev_t >= 0 && prev_sdf > 0 && sdf <= 0) {
             // Crossing between prev_t and t (nearest-voxel values). Trilinear
             // samples at both ends; where they do not bracket the surface

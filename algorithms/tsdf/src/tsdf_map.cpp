@@ -7,17 +7,12 @@ namespace hxmap::alg {
 TsdfMap::TsdfMap(const TsdfParams& params)
     : params_(params),
       voxel_size_(static_cast<float>(params.voxel_size_m)),
-      truncation_(static_cast<float>(params.truncation_m)) {
+      truncation_(static_cast<float>(params.truncation_m)),
+      inv_voxel_size_(1.0f / voxel_size_),
+      inv_block_size_(1.0f / (voxel_size_ * kBlockSide)) {
   rehash(1 << 12);
 }
 
-namespace {
-inline size_t slotOf(uint64_t packed, size_t mask) {
-  uint64_t h = packed * 0x9E3779B97F4A7C15ULL;
-  h ^= h >> 29;
-  return static_cast<size_t>(h) & mask;
-}
-}  // namespace
 
 void TsdfMap::rehash(size_t capacity) {
   table_keys_.assign(capacity, 0);
@@ -29,16 +24,6 @@ void TsdfMap::rehash(size_t capacity) {
     while (table_keys_[s] != 0) s = (s + 1) & mask;
     table_keys_[s] = packed;
     table_values_[s] = static_cast<int32_t>(i);
-  }
-}
-
-int32_t TsdfMap::find(const BlockKey& key) const {
-  const uint64_t packed = pack(key) + 1;
-  const size_t mask = table_keys_.size() - 1;
-  for (size_t s = slotOf(packed, mask);; s = (s + 1) & mask) {
-    const uint64_t k = table_keys_[s];
-    if (k == packed) return table_values_[s];
-    if (k == 0) return -1;
   }
 }
 
@@ -56,17 +41,6 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   table_keys_[s] = packed;
   table_values_[s] = index;
   return index;
-}
-
-BlockKey TsdfMap::blockOf(const Eigen::Vector3f& p) const {
-  const float bs = blockSize();
-  return {static_cast<int>(std::floor(p.x() / bs)), static_cast<int>(std::floor(p.y() / bs)),
-          static_cast<int>(std::floor(p.z() / bs))};
-}
-
-Eigen::Vector3i TsdfMap::voxelOf(const Eigen::Vector3f& p) const {
-  return {static_cast<int>(std::floor(p.x() / voxel_size_)), static_cast<int>(std::floor(p.y() / voxel_size_)),
-          static_cast<int>(std::floor(p.z() / voxel_size_))};
 }
 
 const Voxel* TsdfMap::voxel(const Eigen::Vector3i& g) const {

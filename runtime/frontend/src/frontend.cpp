@@ -76,10 +76,11 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   r.integrated = true;
   r.T_world_cam = T;
 
-  // 4. Raycast the model at the new pose for the next frame.
+  // 4. Raycast the model at the new pose for the next frame (the fused depth
+  //    predicts where each ray meets the surface).
   {
     StageTimer t(r.stage_ms[kRaycast]);
-    renderModel();
+    renderModel(last_frame_.depth_m);
   }
 
   // 5. Keyframes by motion and time.
@@ -94,9 +95,9 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   return r;
 }
 
-void Frontend::renderModel() {
+void Frontend::renderModel(const cv::Mat& depth_hint) {
   model_.clear();
-  model_.push_back(alg::raycast(map_, camera_, T_last_.cast<float>(), params_.raycast, false, parallel_));
+  model_.push_back(alg::raycast(map_, camera_, T_last_.cast<float>(), params_.raycast, false, parallel_, depth_hint));
   const int levels = std::clamp(params_.preprocess.pyramid_levels, 1, 5);
   for (int l = 1; l < levels; ++l) model_.push_back(alg::subsampleView(model_.back()));
 }

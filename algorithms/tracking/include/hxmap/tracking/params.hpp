@@ -7,6 +7,10 @@ struct TrackingParams {
   int iterations_level0 = 6;   ///< full resolution
   int iterations_level1 = 6;
   int iterations_level2 = 10;  ///< coarsest of three levels
+  /// Pixel stride of point-to-plane terms at full resolution. 2 is faster and
+  /// measured more accurate than 1 (ATE orbit/sweep/TUM 0.14/0.13/0.53 cm vs
+  /// 0.18/0.14/0.60; 3: 0.18/0.14/0.52).
+  int icp_stride_level0 = 2;
   double max_correspondence_distance_m = 0.1;  ///< tau_d
   double max_normal_angle_deg = 30.0;          ///< tau_n
   double huber_delta_m = 0.01;                 ///< robust loss rho

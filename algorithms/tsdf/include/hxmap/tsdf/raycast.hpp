@@ -23,8 +23,12 @@ struct ModelView {
   int valid_pixels = 0;
 };
 
+/// `depth_hint` (optional, CV_32F z in meters, camera-sized, 0 = none) predicts
+/// the surface per pixel, e.g. the frame just fused at this pose: such rays
+/// start a truncation distance before it instead of at the per-tile bound.
 ModelView raycast(const TsdfMap& map, const PinholeCamera& camera, const Eigen::Isometry3f& T_world_cam,
-                  const RaycastParams& params, bool with_color = false, const ParallelFor& parallel = serialFor);
+                  const RaycastParams& params, bool with_color = false, const ParallelFor& parallel = serialFor,
+                  const cv::Mat& depth_hint = cv::Mat());
 
 /// A coarser view by taking every second pixel (normals re-used), for
 /// tracking pyramids without re-raycasting.

@@ -7,6 +7,7 @@
 // readers work on their own copy (see copyBlocks) or run between writes.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -60,15 +61,30 @@ class TsdfMap {
   VoxelBlock& block(size_t block_index) { return blocks_[block_index]; }
   const VoxelBlock& block(size_t block_index) const { return blocks_[block_index]; }
 
-  /// Index of the block, or -1 when not allocated.
-  int32_t find(const BlockKey& key) const;
+  /// Index of the block, or -1 when not allocated. Inline: it is on every
+  /// hot path (raycast, trilinear sampling, meshing).
+  int32_t find(const BlockKey& key) const {
+    const uint64_t packed = pack(key) + 1;
+    const size_t mask = table_keys_.size() - 1;
+    for (size_t s = slotOf(packed, mask);; s = (s + 1) & mask) {
+      const uint64_t k = table_keys_[s];
+      if (k == packed) return table_values_[s];
+      if (k == 0) return -1;
+    }
+  }
   /// Index of the block, allocating it (voxels zero-weight) when missing.
   /// May move blocks in memory: do not hold references across calls.
   int32_t findOrAllocate(const BlockKey& key);
 
-  BlockKey blockOf(const Eigen::Vector3f& p_world) const;
+  BlockKey blockOf(const Eigen::Vector3f& p_world) const {
+    const Eigen::Vector3f q = p_world * inv_block_size_;
+    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), static_cast<int>(std::floor(q.z()))};
+  }
   /// Global voxel coordinates of the voxel containing p.
-  Eigen::Vector3i voxelOf(const Eigen::Vector3f& p_world) const;
+  Eigen::Vector3i voxelOf(const Eigen::Vector3f& p_world) const {
+    const Eigen::Vector3f q = p_world * inv_voxel_size_;
+    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), static_cast<int>(std::floor(q.z()))};
+  }
   Eigen::Vector3f voxelCenter(const Eigen::Vector3i& voxel) const {
     return (voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * voxel_size_;
   }
@@ -88,10 +104,16 @@ class TsdfMap {
     return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
            static_cast<uint64_t>(k.z() + (1 << 20));
   }
+  static size_t slotOf(uint64_t packed, size_t mask) {
+    uint64_t h = packed * 0x9E3779B97F4A7C15ULL;
+    h ^= h >> 29;
+    return static_cast<size_t>(h) & mask;
+  }
   void rehash(size_t capacity);
 
   TsdfParams params_;
   float voxel_size_, truncation_;
+  float inv_voxel_size_, inv_block_size_;
   std::vector<VoxelBlock> blocks_;
   std::vector<BlockKey> keys_;
   std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot

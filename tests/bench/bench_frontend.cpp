@@ -1,0 +1,109 @@
+// Backbone benchmark: per-stage medians in ms/frame on a dataset (default:
+// the shared TUM fr1/xyz slice at 640x480), on one core, and integration
+// alone at 1 cm and 2 cm voxels with the memory it takes per square meter of
+// surface. Prints numbers; asserts nothing (timing is not a test).
+//
+//   bench_frontend [dataset_dir] [repeats]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "hxmap/dataset/dataset.hpp"
+#include "hxmap/frontend/frontend.hpp"
+#include "hxmap/eval/trajectory_metrics.hpp"
+#include "hxmap/tsdf/integrate.hpp"
+#include "hxmap/tsdf/mesh_extract.hpp"
+
+using namespace hxmap;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string dir = argc > 1 ? argv[1] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
+  const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 3;
+  auto ds = drv::Dataset::open(dir);
+  if (!ds) {
+    std::fprintf(stderr, "%s\n", ds.message().c_str());
+    return 2;
+  }
+  const auto& d = **ds;
+  std::vector<RgbdFrame> frames;
+  for (size_t i = 0; i < d.size(); ++i) {
+    auto f = d.load(i);
+    if (!f) {
+      std::fprintf(stderr, "%s\n", f.message().c_str());
+      return 2;
+    }
+    frames.push_back(std::move(*f));
+  }
+  std::printf("dataset %s: %zu frames %dx%d, %d repeats, one core\n", dir.c_str(), frames.size(), d.camera().width,
+              d.camera().height, repeats);
+
+  // Whole frontend, per stage.
+  std::array<std::vector<double>, rt::kStageCount> stage;
+  std::vector<double> total, mesh_ms;
+  Trajectory poses;
+  double ate = -1;
+  for (int r = 0; r < repeats; ++r) {
+    rt::Frontend fe(d.camera(), rt::FrontendParams{});
+    Eigen::Isometry3d T0;
+    if (alg::interpolatePose(d.groundTruth(), frames[0].stamp_ns, 200'000'000, T0)) fe.setInitialPose(T0);
+    for (const auto& f : frames) {
+      const auto res = fe.process(f);
+      double sum = 0;
+      for (int s = 0; s < rt::kStageCount; ++s) {
+        if (fe.trajectory().size() > 1) stage[s].push_back(res.stage_ms[s]);  // the first frame has no tracking
+        sum += res.stage_ms[s];
+      }
+      if (fe.trajectory().size() > 1) total.push_back(sum);
+    }
+    const auto t0 = Clock::now();
+    const auto mesh = alg::extractMesh(fe.map(), alg::MeshParams{});
+    mesh_ms.push_back(ms(t0, Clock::now()));
+    poses = fe.trajectory();
+    if (!d.groundTruth().empty()) ate = alg::computeAte(poses, d.groundTruth()).rmse_m;
+  }
+  std::printf("\nfrontend at the default 2 cm voxels, ms/frame (median over %zu frames)\n", total.size());
+  for (int s = 0; s < rt::kStageCount; ++s) std::printf("  %-12s %8.2f\n", rt::stageName(s), median(stage[s]));
+  std::printf("  %-12s %8.2f\n", "total", median(total));
+  std::printf("  %-12s %8.2f  (whole map, once per run)\n", "mesh", median(mesh_ms));
+  if (ate >= 0) std::printf("  ATE RMSE %.2f cm\n", 100 * ate);
+
+  // Integration alone at 1 and 2 cm, along the tracked poses.
+  std::printf("\nintegration alone, ms/frame (median) and memory\n");
+  for (double voxel : {0.02, 0.01}) {
+    alg::TsdfParams tp;
+    tp.voxel_size_m = voxel;
+    tp.truncation_m = 4 * voxel;
+    std::vector<double> t;
+    alg::MapMemory mem;
+    double area = 0;
+    for (int r = 0; r < repeats; ++r) {
+      alg::TsdfMap map(tp);
+      for (size_t i = 0; i < frames.size(); ++i) {
+        const auto pre = alg::preprocessFrame(frames[i], d.camera(), alg::PreprocessParams{});
+        const alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[0].confidence, d.camera(),
+                                        poses[i].T_world_cam.cast<float>()};
+        const auto t0 = Clock::now();
+        alg::integrate(map, obs);
+        t.push_back(ms(t0, Clock::now()));
+      }
+      mem = map.memory();
+      area = alg::extractMesh(map, alg::MeshParams{}).surfaceArea();
+    }
+    std::printf("  voxel %.0f cm: %8.2f ms/frame, %zu blocks, %.1f MiB, %.2f m^2 of surface, %.1f MiB/m^2\n",
+                voxel * 100, median(t), mem.blocks, mem.bytes / 1048576.0, area, mem.bytes / 1048576.0 / area);
+  }
+  return 0;
+}
