@@ -43,7 +43,7 @@ hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
   "TBB not found (apt install libtbb-dev)")
 find_package(benchmark QUIET)
 find_package(Open3D QUIET)
-hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D peer in benchmarks (not implemented yet)" Open3D_FOUND
+hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D TSDF integration as the peer in bench_frontend" Open3D_FOUND
   "Open3D not found (apt install libopen3d-dev)")
 
 function(hxmap_print_summary)

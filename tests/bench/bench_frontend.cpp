@@ -5,6 +5,7 @@
 //
 //   bench_frontend [dataset_dir] [repeats]
 #include <algorithm>
+#include <cstring>
 #include <chrono>
 #include <cstdio>
 #include <string>
@@ -15,6 +16,13 @@
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
+
+#ifdef HXMAP_HAVE_OPEN3D
+#include <open3d/camera/PinholeCameraIntrinsic.h>
+#include <open3d/geometry/Image.h>
+#include <open3d/geometry/RGBDImage.h>
+#include <open3d/pipelines/integration/ScalableTSDFVolume.h>
+#endif
 
 using namespace hxmap;
 using Clock = std::chrono::steady_clock;
@@ -80,7 +88,9 @@ int main(int argc, char** argv) {
   std::printf("  %-12s %8.2f  (whole map, once per run)\n", "mesh", median(mesh_ms));
   if (ate >= 0) std::printf("  ATE RMSE %.2f cm\n", 100 * ate);
 
-  // Integration alone at 1 and 2 cm, along the tracked poses.
+  // Integration alone at 1 and 2 cm, along the tracked poses; Open3D's
+  // ScalableTSDFVolume on the same frames, poses, voxel size and truncation
+  // as the peer (run with OMP_NUM_THREADS=1 for one core).
   std::printf("\nintegration alone, ms/frame (median) and memory\n");
   for (double voxel : {0.02, 0.01}) {
     alg::TsdfParams tp;
@@ -102,8 +112,37 @@ int main(int argc, char** argv) {
       mem = map.memory();
       area = alg::extractMesh(map, alg::MeshParams{}).surfaceArea();
     }
-    std::printf("  voxel %.0f cm: %8.2f ms/frame, %zu blocks, %.1f MiB, %.2f m^2 of surface, %.1f MiB/m^2\n",
+    std::printf("  hxmap  voxel %.0f cm: %8.2f ms/frame, %zu blocks, %.1f MiB, %.2f m^2 of surface, %.1f MiB/m^2\n",
                 voxel * 100, median(t), mem.blocks, mem.bytes / 1048576.0, area, mem.bytes / 1048576.0 / area);
+#ifdef HXMAP_HAVE_OPEN3D
+    namespace o3d = open3d;
+    const auto& c = d.camera();
+    const o3d::camera::PinholeCameraIntrinsic intrinsic(c.width, c.height, c.fx, c.fy, c.cx, c.cy);
+    std::vector<std::shared_ptr<o3d::geometry::RGBDImage>> images;
+    for (const auto& f : frames) {
+      o3d::geometry::Image color, depth;
+      color.Prepare(c.width, c.height, 3, 1);
+      std::memcpy(color.data_.data(), f.rgb.data, color.data_.size());
+      depth.Prepare(c.width, c.height, 1, 4);
+      std::memcpy(depth.data_.data(), f.depth.data, depth.data_.size());  // float meters
+      images.push_back(o3d::geometry::RGBDImage::CreateFromColorAndDepth(
+          color, depth, 1.0, tp.max_integration_depth_m, false));
+    }
+    std::vector<double> t3;
+    for (int r = 0; r < repeats; ++r) {
+      o3d::pipelines::integration::ScalableTSDFVolume volume(voxel, tp.truncation_m,
+                                                             o3d::pipelines::integration::TSDFVolumeColorType::RGB8);
+      for (size_t i = 0; i < images.size(); ++i) {
+        const Eigen::Matrix4d extrinsic = poses[i].T_world_cam.inverse().matrix();  // world to camera
+        const auto t0 = Clock::now();
+        volume.Integrate(*images[i], intrinsic, extrinsic);
+        t3.push_back(ms(t0, Clock::now()));
+      }
+    }
+    const double ratio = median(t3) / median(t);
+    std::printf("  Open3D voxel %.0f cm: %8.2f ms/frame (ScalableTSDFVolume)  -> hxmap is %.2fx %s\n", voxel * 100,
+                median(t3), ratio >= 1 ? ratio : 1 / ratio, ratio >= 1 ? "faster" : "slower");
+#endif
   }
   return 0;
 }
