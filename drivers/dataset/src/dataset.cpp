@@ -259,7 +259,6 @@ Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
   }
   if (colors.empty()) return Error{results.string() + ": no frameNNNNNN.jpg images"};
   const int64_t period_ns = 1'000'000'000LL / 30;
-  size_t index = 0;
   for (const auto& [number, path] : colors) {
     auto it = depths.find(number);
     if (it == depths.end()) {
@@ -268,7 +267,6 @@ Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
       d.skipped_.push_back(msg);
       continue;
     }
-    (void)index;
     d.frames_.push_back({number * period_ns, path, it->second, path, it->second});
   }
   const fs::path traj_path = dir / "traj.txt";
