@@ -88,6 +88,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("iterations_level0", k.iterations_level0, 0, 100);
   v.integer("iterations_level1", k.iterations_level1, 0, 100);
   v.integer("iterations_level2", k.iterations_level2, 0, 100);
+  v.integer("model_level", k.model_level, 0, 4);
   v.integer("icp_stride_level0", k.icp_stride_level0, 1, 16);
   v.number("max_correspondence_distance_m", k.max_correspondence_distance_m, 0.001, 2);
   v.number("max_normal_angle_deg", k.max_normal_angle_deg, 1, 90);

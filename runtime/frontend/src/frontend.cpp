@@ -80,7 +80,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   //    predicts where each ray meets the surface).
   {
     StageTimer t(r.stage_ms[kRaycast]);
-    renderModel(last_frame_.depth_m);
+    renderModel(last_frame_);
   }
 
   // 5. Keyframes by motion and time.
@@ -95,11 +95,18 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   return r;
 }
 
-void Frontend::renderModel(const cv::Mat& depth_hint) {
+void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   model_.clear();
-  model_.push_back(alg::raycast(map_, camera_, T_last_.cast<float>(), params_.raycast, false, parallel_, depth_hint));
   const int levels = std::clamp(params_.preprocess.pyramid_levels, 1, 5);
-  for (int l = 1; l < levels; ++l) model_.push_back(alg::subsampleView(model_.back()));
+  // The model is raycast at pyramid level `model_level` (the fused frame's
+  // depth at that level as the hint); finer tracking levels associate into
+  // that same view, coarser ones into subsampled copies.
+  const int model_level = std::clamp(params_.tracking.model_level, 0, static_cast<int>(fused.levels.size()) - 1);
+  const cv::Mat& hint = model_level == 0 ? fused.depth_m : fused.levels[model_level].depth;
+  model_.push_back(
+      alg::raycast(map_, camera_.level(model_level), T_last_.cast<float>(), params_.raycast, false, parallel_, hint));
+  for (int l = 1; l <= model_level && l < levels; ++l) model_.push_back(model_.back());
+  while (static_cast<int>(model_.size()) < levels) model_.push_back(alg::subsampleView(model_.back()));
 }
 
 }  // namespace hxmap::rt

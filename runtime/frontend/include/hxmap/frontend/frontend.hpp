@@ -61,7 +61,7 @@ class Frontend {
   size_t keyframes() const { return keyframes_; }
 
  private:
-  void renderModel(const cv::Mat& depth_hint);
+  void renderModel(const alg::PreprocessedFrame& fused);
 
   alg::PinholeCamera camera_;
   FrontendParams params_;
