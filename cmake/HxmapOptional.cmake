@@ -41,7 +41,6 @@ hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing (not implemented yet)" Cyc
 find_package(TBB QUIET)
 hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
   "TBB not found (apt install libtbb-dev)")
-find_package(benchmark QUIET)
 find_package(Open3D QUIET)
 hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D TSDF integration as the peer in bench_frontend" Open3D_FOUND
   "Open3D not found (apt install libopen3d-dev)")

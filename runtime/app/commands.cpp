@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <numeric>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -33,7 +32,7 @@ Expected<HxmapConfig> loadAndPrint(const std::string& path) {
 }
 
 struct Percentiles {
-  double median = 0, p90 = 0, max = 0, mean = 0;
+  double median = 0, p90 = 0, max = 0;
 };
 Percentiles percentiles(std::vector<double> v) {
   Percentiles p;
@@ -43,7 +42,6 @@ Percentiles percentiles(std::vector<double> v) {
   p.median = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
   p.p90 = v[std::min(n - 1, static_cast<size_t>(0.9 * static_cast<double>(n)))];
   p.max = v.back();
-  p.mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(n);
   return p;
 }
 

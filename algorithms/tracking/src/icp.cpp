@@ -139,7 +139,6 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   const int levels = static_cast<int>(std::min(model.size(), frame.levels.size()));
   const int iterations[3] = {params.iterations_level0, params.iterations_level1, params.iterations_level2};
   Eigen::Isometry3d T = T_init;
-  Accumulation last;
   const bool use_photometric = reference.frame != nullptr && params.photometric_scale_m > 0 &&
                                frame.has_color && reference.frame->has_color;
   for (int l = levels - 1; l >= 0; --l) {
@@ -149,12 +148,11 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
           accumulate(frame.levels[l], model[l], T.cast<float>(), params, l == 0 ? params.icp_stride_level0 : 1);
       ++result.iterations;
       if (acc.inliers < 6) break;
-      acc.H.triangularView<Eigen::Upper>() = acc.H.transpose();
       if (use_photometric && static_cast<size_t>(l) < reference.frame->levels.size()) {
         accumulatePhotometric(frame.levels[l], reference.frame->levels[l], reference.T_world_cam.cast<float>(),
                               T.cast<float>(), params, l == 0 ? params.photometric_stride_level0 : 1, acc);
-        acc.H.triangularView<Eigen::Upper>() = acc.H.transpose();
       }
+      acc.H.triangularView<Eigen::Upper>() = acc.H.transpose();  // both passes fill the lower triangle
       Eigen::LDLT<Matrix6d> ldlt(acc.H);
       const Vector6d xi = -ldlt.solve(acc.b);
       if (!xi.allFinite()) break;
@@ -165,7 +163,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     }
   }
   // Final evaluation at full resolution decides success.
-  last = accumulate(frame.levels[0], model[0], T.cast<float>(), params, 1);
+  Accumulation last = accumulate(frame.levels[0], model[0], T.cast<float>(), params, 1);
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum / last.inliers) : 0.0;
   last.H.triangularView<Eigen::Upper>() = last.H.transpose();
