@@ -2,6 +2,9 @@
 # hxmap_flags (linked privately by each module).
 add_library(hxmap_flags INTERFACE)
 target_compile_options(hxmap_flags INTERFACE -Wall -Wextra -Wpedantic)
+# No errno from libm: lets sqrt and friends inline (hxmap never reads errno
+# after math calls).
+target_compile_options(hxmap_flags INTERFACE -fno-math-errno)
 if(HXMAP_WERROR)
   target_compile_options(hxmap_flags INTERFACE -Werror)
 endif()

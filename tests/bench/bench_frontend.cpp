@@ -97,6 +97,7 @@ int main(int argc, char** argv) {
     tp.voxel_size_m = voxel;
     tp.truncation_m = 4 * voxel;
     std::vector<double> t;
+    double band_blocks = 0, voxel_updates = 0;
     alg::MapMemory mem;
     double area = 0;
     for (int r = 0; r < repeats; ++r) {
@@ -106,14 +107,19 @@ int main(int argc, char** argv) {
         const alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[0].confidence, d.camera(),
                                         poses[i].T_world_cam.cast<float>()};
         const auto t0 = Clock::now();
-        alg::integrate(map, obs);
+        const auto st = alg::integrate(map, obs);
         t.push_back(ms(t0, Clock::now()));
+        band_blocks += static_cast<double>(st.blocks_in_band);
+        voxel_updates += static_cast<double>(st.voxels_updated);
       }
       mem = map.memory();
       area = alg::extractMesh(map, alg::MeshParams{}).surfaceArea();
     }
     std::printf("  hxmap  voxel %.0f cm: %8.2f ms/frame, %zu blocks, %.1f MiB, %.2f m^2 of surface, %.1f MiB/m^2\n",
                 voxel * 100, median(t), mem.blocks, mem.bytes / 1048576.0, area, mem.bytes / 1048576.0 / area);
+    const double n = static_cast<double>(t.size());
+    std::printf("         per frame %.0f blocks in the band, %.0f voxel updates\n", band_blocks / n,
+                voxel_updates / n);
 #ifdef HXMAP_HAVE_OPEN3D
     namespace o3d = open3d;
     const auto& c = d.camera();

@@ -3,83 +3,192 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 
 namespace hxmap::alg {
 
-std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, size_t* newly_allocated) {
-  const float mu = map.truncation();
+namespace {
+// floor() for floats well inside the int range, without a libm call.
+inline int fastFloor(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i));
+}
+}  // namespace
+
+int integrationLevel(const TsdfMap& map, const PinholeCamera& camera) {
+  if (map.params().integration_level >= 0) return std::min(map.params().integration_level, 3);
+  // Auto: half resolution where a voxel at max_integration_depth_m still
+  // spans half a pixel there (fx 525, 4 m: 2 cm -> 1.3 px, 1 cm -> 0.66 px).
+  // Measured on the synthetic orbit/sweep at 1 cm voxels, level 1 vs 0: mesh
+  // F1@1cm 95.0/96.5% vs 94.8/96.4%, ATE unchanged, fusion 1.6x faster.
+  const double px = 0.5 * std::min(camera.fx, camera.fy) * map.voxelSize() / map.params().max_integration_depth_m;
+  return px >= 0.5 ? 1 : 0;
+}
+
+int allocationStride(const TsdfMap& map, const PinholeCamera& camera) {
+  if (map.params().allocation_stride_px > 0) return map.params().allocation_stride_px;
+  // Auto: the pixels a block spans at max_integration_depth_m over 2.5 (at
+  // integration level 1, fx 525: 2 cm voxels -> 4, 1 cm -> 2). Measured on
+  // the synthetic orbit at 2 cm: stride 3 and 4 give the same mesh, 5 loses
+  // 0.2% recall.
+  const double span_px = std::min(camera.fx, camera.fy) * map.blockSize() / map.params().max_integration_depth_m;
+  return std::clamp(static_cast<int>(span_px / 2.5), 1, 16);
+}
+
+namespace {
+
+// The observation as fusion reads it: every 2^level-th pixel in both
+// directions, depth, confidence and color side by side (one cache line per
+// lookup instead of three), depth 0 where the pixel is not to be integrated.
+// DESIGN:
+// fusion is bound by these scattered reads, not by arithmetic; at 2 cm
+// voxels a voxel covers 2.6 px or more up to 4 m, so reading every second
+// pixel (a quarter of the memory, which then stays in L2) loses nothing
+// (measured 2.1 -> 1.2 ms per frame on the TUM slice).
+struct PackedDepth {
+  struct Pixel {
+    float depth_m;
+    float confidence;
+    uint8_t rgb[4];  // the fourth byte is padding
+  };
+  int level = 0, width = 0, height = 0;
+  std::vector<Pixel> pixels;
+  // Projection onto the packed grid: sample (u, v) is pixel (u, v) << level.
+  float fx = 0, fy = 0, cx = 0, cy = 0;
+  const Pixel& at(int u, int v) const { return pixels[static_cast<size_t>(v) * width + u]; }
+};
+
+PackedDepth packObservation(const TsdfMap& map, const DepthObservation& obs) {
+  PackedDepth out;
+  out.level = integrationLevel(map, obs.camera);
+  const int step = 1 << out.level;
+  const float scale = 1.0f / static_cast<float>(step);
+  out.width = (obs.depth_m.cols + step - 1) / step;
+  out.height = (obs.depth_m.rows + step - 1) / step;
+  out.fx = static_cast<float>(obs.camera.fx) * scale;
+  out.fy = static_cast<float>(obs.camera.fy) * scale;
+  out.cx = static_cast<float>(obs.camera.cx) * scale;
+  out.cy = static_cast<float>(obs.camera.cy) * scale;
+  out.pixels.resize(static_cast<size_t>(out.width) * out.height);
   const float max_depth = static_cast<float>(map.params().max_integration_depth_m);
   const float min_conf = static_cast<float>(map.params().min_confidence);
-  const int stride = std::max(1, map.params().allocation_stride_px);
-  const float step = map.blockSize() * 0.5f;
+  const bool has_conf = !obs.confidence.empty(), has_rgb = !obs.rgb.empty();
+  for (int v = 0; v < out.height; ++v) {
+    const float* drow = obs.depth_m.ptr<float>(v * step);
+    const float* crow = has_conf ? obs.confidence.ptr<float>(v * step) : nullptr;
+    const uint8_t* rgb = has_rgb ? obs.rgb.ptr<uint8_t>(v * step) : nullptr;
+    PackedDepth::Pixel* o = &out.pixels[static_cast<size_t>(v) * out.width];
+    for (int u = 0; u < out.width; ++u) {
+      const float d = drow[u * step];
+      const float c = crow ? crow[u * step] : 1.0f;
+      const bool ok = d > 0.0f && d <= max_depth && c >= min_conf && c > 0.0f;
+      o[u].depth_m = ok ? d : 0.0f;
+      o[u].confidence = ok ? c : 0.0f;
+      if (rgb) {
+        const uint8_t* k = rgb + 3 * u * step;
+        o[u].rgb[0] = k[0];
+        o[u].rgb[1] = k[1];
+        o[u].rgb[2] = k[2];
+      }
+    }
+  }
+  return out;
+}
+
+std::vector<int32_t> allocateBand(TsdfMap& map, const PackedDepth& img, const Eigen::Isometry3f& T_world_cam,
+                                  size_t* newly_allocated) {
+  const float mu = map.truncation();
+  PinholeCamera grid;
+  grid.fx = img.fx;
+  grid.fy = img.fy;
+  const int stride = allocationStride(map, grid);
   const size_t before = map.blockCount();
   std::vector<int32_t> touched;
   std::vector<uint8_t> mark(map.blockCount(), 0);
-  auto touch = [&](const Eigen::Vector3f& p) {
-    const int32_t b = map.findOrAllocate(map.blockOf(p));
+  // Neighbouring samples mostly fall in the block just seen: skip its lookup.
+  BlockKey last_key(std::numeric_limits<int>::min(), 0, 0);
+  auto touch = [&](const Eigen::Vector3f& q) {  // q in block units
+    const BlockKey key(fastFloor(q.x()), fastFloor(q.y()), fastFloor(q.z()));
+    if (key == last_key) return;
+    last_key = key;
+    const int32_t b = map.findOrAllocate(key);
     if (static_cast<size_t>(b) >= mark.size()) mark.resize(b + 1, 0);
     if (!mark[b]) {
       mark[b] = 1;
       touched.push_back(b);
     }
   };
-  const bool has_conf = !obs.confidence.empty();
-  for (int v = stride / 2; v < obs.depth_m.rows; v += stride) {
-    const float* drow = obs.depth_m.ptr<float>(v);
-    const float* crow = has_conf ? obs.confidence.ptr<float>(v) : nullptr;
-    for (int u = stride / 2; u < obs.depth_m.cols; u += stride) {
-      const float z = drow[u];
-      if (!(z > 0) || z > max_depth || (crow && crow[u] < min_conf)) continue;
-      const Eigen::Vector3f ray = obs.camera.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-      const float len = ray.norm();
-      // Along-ray band [z - mu, z + mu] in depth units.
+  // Work in block units: q = (R p_cam + t) / block_size, the pixel's ray
+  // direction (z = 1) built incrementally along the row. Each pixel's band
+  // [z - mu, z + mu] is sampled every half block.
+  const float inv_bs = 1.0f / map.blockSize();
+  const Eigen::Matrix3f R = T_world_cam.linear() * inv_bs;
+  const Eigen::Vector3f t = T_world_cam.translation() * inv_bs;
+  const float inv_fx = 1.0f / img.fx, inv_fy = 1.0f / img.fy;
+  for (int v = stride / 2; v < img.height; v += stride) {
+    const Eigen::Vector3f row_dir = R.col(1) * ((static_cast<float>(v) - img.cy) * inv_fy) + R.col(2);
+    for (int u = stride / 2; u < img.width; u += stride) {
+      const float z = img.at(u, v).depth_m;
+      if (!(z > 0)) continue;
+      const Eigen::Vector3f dir = row_dir + R.col(0) * ((static_cast<float>(u) - img.cx) * inv_fx);
       const float z0 = std::max(0.01f, z - mu), z1 = z + mu;
-      const Eigen::Vector3f a = obs.T_world_cam * (ray * z0), b = obs.T_world_cam * (ray * z1);
-      const float length = (z1 - z0) * len;
-      const int n = std::max(1, static_cast<int>(std::ceil(length / step)));
-      for (int k = 0; k <= n; ++k) touch(a + (b - a) * (static_cast<float>(k) / static_cast<float>(n)));
+      const Eigen::Vector3f a = t + dir * z0, d = dir * (z1 - z0);
+      const int n = std::max(1, static_cast<int>(2.0f * d.norm()) + 1);  // half-block steps
+      const float inv_n = 1.0f / static_cast<float>(n);
+      for (int k = 0; k <= n; ++k) touch(a + d * (static_cast<float>(k) * inv_n));
     }
   }
   if (newly_allocated) *newly_allocated = map.blockCount() - before;
   return touched;
 }
 
+}  // namespace
+
+std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, size_t* newly_allocated) {
+  return allocateBand(map, packObservation(map, obs), obs.T_world_cam, newly_allocated);
+}
+
 namespace {
 
-inline void fuse(Voxel& vx, float tsdf, float w, float max_w, const uint8_t* rgb, float mu) {
-  const float new_w = vx.weight + w;
-  vx.sdf_m = (vx.sdf_m * vx.weight + tsdf * w) / new_w;
-  if (rgb && tsdf < mu) {
-    const float a = w / new_w;
-    vx.r = static_cast<uint8_t>(std::lround(vx.r + a * (static_cast<float>(rgb[0]) - vx.r)));
-    vx.g = static_cast<uint8_t>(std::lround(vx.g + a * (static_cast<float>(rgb[1]) - vx.g)));
-    vx.b = static_cast<uint8_t>(std::lround(vx.b + a * (static_cast<float>(rgb[2]) - vx.b)));
+// Weighted running averages: x += a (obs - x) with a = w / (W + w), the
+// weight then capped. Color and update statistics only from observations
+// inside the band (tsdf < mu), not from free-space clamps.
+inline float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max_w) {
+  const float new_w = blk.weight[i] + w;
+  const float a = w / std::max(new_w, 1e-20f);  // 0 where w = 0
+  blk.sdf_m[i] += a * (tsdf - blk.sdf_m[i]);
+  blk.weight[i] = std::min(new_w, max_w);
+  return a;
+}
+
+inline void fuseAppearance(VoxelBlock& blk, int i, float tsdf, float a, const uint8_t* rgb) {
+  if (rgb) {  // in [0, 255]: +0.5 and truncation round to nearest (no libm call)
+    VoxelColor& k = blk.color[i];
+    k.r = static_cast<uint8_t>(k.r + a * (static_cast<float>(rgb[0]) - k.r) + 0.5f);
+    k.g = static_cast<uint8_t>(k.g + a * (static_cast<float>(rgb[1]) - k.g) + 0.5f);
+    k.b = static_cast<uint8_t>(k.b + a * (static_cast<float>(rgb[2]) - k.b) + 0.5f);
   }
-  vx.weight = std::min(new_w, max_w);
-  if (tsdf < mu) {  // statistics of surface observations, not free-space clamps
-    ++vx.updates;
-    const float delta = tsdf - vx.update_mean_m;
-    vx.update_mean_m += delta / static_cast<float>(vx.updates);
-    vx.update_m2 += delta * (tsdf - vx.update_mean_m);
-  }
+  VoxelStats& st = blk.stats[i];
+  ++st.updates;
+  const float delta = tsdf - st.mean_m;
+  st.mean_m += delta / static_cast<float>(st.updates);
+  st.m2 += delta * (tsdf - st.mean_m);
 }
 
 }  // namespace
 
 IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
   IntegrationStats stats;
-  const std::vector<int32_t> blocks = allocateBand(map, obs, &stats.blocks_allocated);
+  const PackedDepth img = packObservation(map, obs);
+  const std::vector<int32_t> blocks = allocateBand(map, img, obs.T_world_cam, &stats.blocks_allocated);
   stats.blocks_in_band = blocks.size();
   const Eigen::Isometry3f T_cam_world = obs.T_world_cam.inverse();
   const Eigen::Matrix3f R = T_cam_world.linear();
   const float vs = map.voxelSize(), mu = map.truncation();
   const float max_w = static_cast<float>(map.params().max_weight);
-  const float max_depth = static_cast<float>(map.params().max_integration_depth_m);
-  const float min_conf = static_cast<float>(map.params().min_confidence);
-  const float fx = static_cast<float>(obs.camera.fx), fy = static_cast<float>(obs.camera.fy);
-  const float cx = static_cast<float>(obs.camera.cx), cy = static_cast<float>(obs.camera.cy);
-  const int W = obs.depth_m.cols, H = obs.depth_m.rows;
-  const bool has_rgb = !obs.rgb.empty(), has_conf = !obs.confidence.empty();
+  const float fx = img.fx, fy = img.fy, cx = img.cx, cy = img.cy;
+  const float Wf = static_cast<float>(img.width), Hf = static_cast<float>(img.height);
+  const bool has_rgb = !obs.rgb.empty();
   const Eigen::Vector3f dx = R.col(0) * vs, dy = R.col(1) * vs, dz = R.col(2) * vs;
   std::atomic<size_t> updated{0};
   parallel(blocks.size(), [&](size_t begin, size_t end) {
@@ -91,23 +200,45 @@ IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const Para
       const Eigen::Vector3f origin_cam = T_cam_world * origin_world;
       for (int z = 0; z < kBlockSide; ++z) {
         for (int y = 0; y < kBlockSide; ++y) {
-          Eigen::Vector3f p = origin_cam + dz * static_cast<float>(z) + dy * static_cast<float>(y);
-          Voxel* row = &block.voxels[VoxelBlock::index(0, y, z)];
-          for (int x = 0; x < kBlockSide; ++x, p += dx) {
-            if (p.z() <= 0.0f) continue;
-            const float inv_z = 1.0f / p.z();
-            const int u = static_cast<int>(std::lround(fx * p.x() * inv_z + cx));
-            const int v = static_cast<int>(std::lround(fy * p.y() * inv_z + cy));
-            if (u < 0 || v < 0 || u >= W || v >= H) continue;
-            const float d = obs.depth_m.ptr<float>(v)[u];
-            if (!(d > 0.0f) || d > max_depth) continue;
-            const float sdf = d - p.z();
-            if (sdf < -mu) continue;
-            const float c = has_conf ? obs.confidence.ptr<float>(v)[u] : 1.0f;
-            if (c < min_conf || c <= 0.0f) continue;
-            const uint8_t* rgb = has_rgb ? obs.rgb.ptr<uint8_t>(v) + 3 * u : nullptr;
-            fuse(row[x], std::min(sdf, mu), c, max_w, rgb, mu);
+          const Eigen::Vector3f p0 = origin_cam + dz * static_cast<float>(z) + dy * static_cast<float>(y);
+          const int i0 = VoxelBlock::index(0, y, z);
+          // A row of 8 voxels in three passes: project (vectorizable), look
+          // up depth and confidence (scalar gathers), fuse geometry
+          // (vectorizable); then color and statistics for the voxels inside
+          // the band. Nearest sample: floor(x + 0.5) by truncation once
+          // x + 0.5 >= 0. Voxels behind the camera give inf/NaN in the
+          // projection, rejected by the z test.
+          float pz[kBlockSide], uf[kBlockSide], vf[kBlockSide];
+          for (int x = 0; x < kBlockSide; ++x) {
+            const float k = static_cast<float>(x);
+            const float px = p0.x() + k * dx.x(), py = p0.y() + k * dx.y();
+            pz[x] = p0.z() + k * dx.z();
+            const float inv_z = 1.0f / pz[x];
+            uf[x] = fx * px * inv_z + cx + 0.5f;
+            vf[x] = fy * py * inv_z + cy + 0.5f;
+          }
+          float tsdf[kBlockSide] = {}, w[kBlockSide] = {};
+          const uint8_t* rgb[kBlockSide];
+          bool any = false;
+          for (int x = 0; x < kBlockSide; ++x) {
+            if (!(pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < Wf && vf[x] < Hf)) continue;
+            const int u = static_cast<int>(uf[x]), v = static_cast<int>(vf[x]);
+            const PackedDepth::Pixel& px = img.at(u, v);
+            const float sdf = px.depth_m - pz[x];
+            if (!(px.depth_m > 0.0f) || sdf < -mu) continue;
+            tsdf[x] = std::min(sdf, mu);
+            w[x] = px.confidence;
+            rgb[x] = px.rgb;
+            any = true;
+          }
+          if (!any) continue;
+          float a[kBlockSide];
+          for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
+          for (int x = 0; x < kBlockSide; ++x) {
+            if (w[x] <= 0.0f) continue;
             ++local_updates;
+            if (tsdf[x] >= mu) continue;
+            fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
           }
         }
       }
@@ -124,6 +255,8 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
   stats.blocks_in_band = blocks.size();
   const Eigen::Isometry3d T_cam_world = obs.T_world_cam.cast<double>().inverse();
   const double mu = map.params().truncation_m;
+  // Reads every 2^level-th pixel like the optimized kernel: the nearest such pixel.
+  const double step = static_cast<double>(1 << integrationLevel(map, obs.camera));
   for (const int32_t b : blocks) {
     for (int i = 0; i < kBlockVoxels; ++i) {
       const int x = i % kBlockSide, y = (i / kBlockSide) % kBlockSide, z = i / (kBlockSide * kBlockSide);
@@ -132,7 +265,7 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
       if (p.z() <= 0) continue;
       const double u = obs.camera.fx * p.x() / p.z() + obs.camera.cx;
       const double v = obs.camera.fy * p.y() / p.z() + obs.camera.cy;
-      const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
+      const int ui = static_cast<int>(std::lround(u / step) * step), vi = static_cast<int>(std::lround(v / step) * step);
       if (ui < 0 || vi < 0 || ui >= obs.depth_m.cols || vi >= obs.depth_m.rows) continue;
       const double d = obs.depth_m.at<float>(vi, ui);
       if (!(d > 0) || d > map.params().max_integration_depth_m) continue;
@@ -141,8 +274,10 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
       const double c = obs.confidence.empty() ? 1.0 : obs.confidence.at<float>(vi, ui);
       if (c < map.params().min_confidence || c <= 0) continue;
       const uint8_t* rgb = obs.rgb.empty() ? nullptr : obs.rgb.ptr<uint8_t>(vi) + 3 * ui;
-      fuse(map.block(b).voxels[i], static_cast<float>(std::min(sdf, mu)), static_cast<float>(c),
-           static_cast<float>(map.params().max_weight), rgb, static_cast<float>(mu));
+      const float tsdf = static_cast<float>(std::min(sdf, mu));
+      VoxelBlock& blk = map.block(b);
+      const float a = fuseGeometry(blk, i, tsdf, static_cast<float>(c), static_cast<float>(map.params().max_weight));
+      if (tsdf < static_cast<float>(mu)) fuseAppearance(blk, i, tsdf, a, rgb);
       ++stats.voxels_updated;
     }
   }

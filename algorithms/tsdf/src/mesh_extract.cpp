@@ -178,23 +178,25 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
       const int32_t i = map.find(key + BlockKey(m & 1, (m >> 1) & 1, (m >> 2) & 1));
       nb[m] = i >= 0 ? &map.block(i) : nullptr;
     }
-    auto at = [&](int x, int y, int z) -> const Voxel* {
+    // Corner (x, y, z) of this block's cubes, x, y, z in [0, 8]: its block
+    // (or nullptr) and index there.
+    auto at = [&](int x, int y, int z, int& index) -> const VoxelBlock* {
       const int m = (x >= kBlockSide) | ((y >= kBlockSide) << 1) | ((z >= kBlockSide) << 2);
-      const VoxelBlock* blk = nb[m];
-      if (!blk) return nullptr;
-      return &blk->voxels[VoxelBlock::index(x % kBlockSide, y % kBlockSide, z % kBlockSide)];
+      index = VoxelBlock::index(x % kBlockSide, y % kBlockSide, z % kBlockSide);
+      return nb[m];
     };
     for (int z = 0; z < kBlockSide; ++z) {
       for (int y = 0; y < kBlockSide; ++y) {
         for (int x = 0; x < kBlockSide; ++x) {
-          const Voxel* corner[8];
+          const VoxelBlock* corner[8];
+          int ci[8];
           float s[8];
           bool ok = true, neg = false, pos = false;
           for (int c = 0; c < 8 && ok; ++c) {
-            corner[c] = at(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1));
-            ok = corner[c] != nullptr && corner[c]->weight >= min_w;
+            corner[c] = at(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1), ci[c]);
+            ok = corner[c] != nullptr && corner[c]->weight[ci[c]] >= min_w;
             if (ok) {
-              s[c] = corner[c]->sdf_m;
+              s[c] = corner[c]->sdf_m[ci[c]];
               neg |= s[c] < 0;
               pos |= s[c] >= 0;
             }
@@ -203,11 +205,11 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
           const Eigen::Vector3i g = key * kBlockSide + Eigen::Vector3i(x, y, z);
           emitCube(s, g, voxel_origin, vs, welded, mesh, [&](int c0, int c1, float t) {
             if (!params.with_colors) return;
-            const Voxel& a = *corner[c0];
-            const Voxel& b = *corner[c1];
-            mesh.colors.emplace_back(static_cast<uint8_t>(std::lround(a.r + t * (b.r - a.r))),
-                                     static_cast<uint8_t>(std::lround(a.g + t * (b.g - a.g))),
-                                     static_cast<uint8_t>(std::lround(a.b + t * (b.b - a.b))));
+            const VoxelColor& a = corner[c0]->color[ci[c0]];
+            const VoxelColor& b = corner[c1]->color[ci[c1]];
+            mesh.colors.emplace_back(static_cast<uint8_t>(a.r + t * (b.r - a.r) + 0.5f),  // in [0, 255]: rounds
+                                     static_cast<uint8_t>(a.g + t * (b.g - a.g) + 0.5f),
+                                     static_cast<uint8_t>(a.b + t * (b.b - a.b) + 0.5f));
           });
         }
       }

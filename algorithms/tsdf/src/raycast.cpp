@@ -67,31 +67,6 @@ void tileBounds(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isome
   }
 }
 
-// Nearest-voxel reads along one ray with the last block cached.
-class RayAccessor {
- public:
-  explicit RayAccessor(const TsdfMap& map) : map_(map) {}
-  /// False when p's block is not allocated (then `key` is that block).
-  bool voxel(const Eigen::Vector3f& p, const Voxel*& out, BlockKey& key) {
-    const Eigen::Vector3i g = map_.voxelOf(p);
-    key = BlockKey(floorDiv(g.x(), kBlockSide), floorDiv(g.y(), kBlockSide), floorDiv(g.z(), kBlockSide));
-    if (!(key == key_)) {
-      key_ = key;
-      const int32_t b = map_.find(key);
-      block_ = b >= 0 ? &map_.block(b) : nullptr;
-    }
-    if (block_ == nullptr) return false;
-    const Eigen::Vector3i l = g - key * kBlockSide;
-    out = &block_->voxels[VoxelBlock::index(l.x(), l.y(), l.z())];
-    return true;
-  }
-
- private:
-  const TsdfMap& map_;
-  BlockKey key_{std::numeric_limits<int>::min(), 0, 0};
-  const VoxelBlock* block_ = nullptr;
-};
-
 }  // namespace
 
 ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3f& T_world_cam,
@@ -116,7 +91,7 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
   std::atomic<int> valid{0};
   parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
     int local_valid = 0;
-    RayAccessor access(map);
+    BlockCache cache(map);
     for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
       float* drow = view.depth.ptr<float>(v);
       auto* vrow = view.vertex_world.ptr<cv::Vec3f>(v);
@@ -149,19 +124,21 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         int guard = 0;
         while (t < t_max && ++guard < 4096) {
           const Eigen::Vector3f p = origin + t * dir;
-          const Voxel* vx = nullptr;
-          BlockKey key;
-          if (!access.voxel(p, vx, key)) {
+          const Eigen::Vector3i g = map.voxelOf(p);
+          int vi = 0;
+          const VoxelBlock* blk = cache.blockOfVoxel(g, vi);
+          if (blk == nullptr) {
+            const BlockKey key(g.x() >> 3, g.y() >> 3, g.z() >> 3);
             t = std::max(t + 0.5f * vs, blockExit(map, key, origin, inv_dir) + 1e-4f);
             prev_t = -1;
             continue;
           }
-          if (vx->weight <= min_w) {
+          if (blk->weight[vi] <= min_w) {
             t += vs;
             prev_t = -1;
             continue;
           }
-          const float sdf = vx->sdf_m;
+          const float sdf = blk->sdf_m[vi];
           if (from_hint) {
             from_hint = false;
             if (sdf < 0) {  // started behind a surface
@@ -176,15 +153,15 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
             // (it may lie up to a voxel outside), move the ends outwards in
             // half-voxel steps. Typically two or three samples per ray.
             float ta = prev_t, tb = t, sa = 0, sb = 0;
-            bool ok_a = map.sample(origin + ta * dir, min_w, sa);
+            bool ok_a = cache.sample(origin + ta * dir, min_w, sa);
             for (int k = 0; k < 3 && ok_a && sa <= 0; ++k) {
               ta -= 0.5f * vs;
-              ok_a = map.sample(origin + ta * dir, min_w, sa);
+              ok_a = cache.sample(origin + ta * dir, min_w, sa);
             }
-            bool ok_b = map.sample(origin + tb * dir, min_w, sb);
+            bool ok_b = cache.sample(origin + tb * dir, min_w, sb);
             for (int k = 0; k < 3 && ok_b && sb > 0; ++k) {
               tb += 0.5f * vs;
-              ok_b = map.sample(origin + tb * dir, min_w, sb);
+              ok_b = cache.sample(origin + tb * dir, min_w, sb);
             }
             if (!(ok_a && ok_b && sa > 0 && sb <= 0)) ta = -1;
             // No trilinear bracket (the edge of the observed surface, where
@@ -192,7 +169,7 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
             if (ta < 0) break;
             float th_ = ta + (tb - ta) * sa / (sa - sb);
             float s_mid = 0;
-            if (map.sample(origin + th_ * dir, min_w, s_mid)) {
+            if (cache.sample(origin + th_ * dir, min_w, s_mid)) {
               if (s_mid > 0 && sb < 0) {
                 th_ = th_ + (tb - th_) * s_mid / (s_mid - sb);
               } else if (s_mid < 0 && sa > 0) {
@@ -213,10 +190,10 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         ++local_valid;
         if (with_color) {
           Eigen::Vector3f c;
-          if (map.sampleColor(p, c)) {
-            view.rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(static_cast<uint8_t>(std::lround(c.x())),
-                                                     static_cast<uint8_t>(std::lround(c.y())),
-                                                     static_cast<uint8_t>(std::lround(c.z())));
+          if (cache.sampleColor(p, c)) {  // in [0, 255]: +0.5 and truncation round
+            view.rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(static_cast<uint8_t>(c.x() + 0.5f),
+                                                     static_cast<uint8_t>(c.y() + 0.5f),
+                                                     static_cast<uint8_t>(c.z() + 0.5f));
           }
         }
       }

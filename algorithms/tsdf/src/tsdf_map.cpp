@@ -43,39 +43,31 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   return index;
 }
 
-const Voxel* TsdfMap::voxel(const Eigen::Vector3i& g) const {
-  const BlockKey key(floorDiv(g.x(), kBlockSide), floorDiv(g.y(), kBlockSide), floorDiv(g.z(), kBlockSide));
-  const int32_t b = find(key);
-  if (b < 0) return nullptr;
-  const Eigen::Vector3i l = g - key * kBlockSide;
-  return &blocks_[b].voxels[VoxelBlock::index(l.x(), l.y(), l.z())];
+bool TsdfMap::voxel(const Eigen::Vector3i& g, Voxel& out) const {
+  int i = 0;
+  const VoxelBlock* blk = blockOfVoxel(g, i);
+  if (blk == nullptr) return false;
+  out.sdf_m = blk->sdf_m[i];
+  out.weight = blk->weight[i];
+  out.color = blk->color[i];
+  out.stats = blk->stats[i];
+  return true;
 }
 
 namespace {
-// The 8 voxels around p and the trilinear weights; false when one is missing.
-template <typename Map>
-bool gatherCorners(const Map& map, const Eigen::Vector3f& p, float min_weight, const Voxel* corners[8],
-                   Eigen::Vector3f& frac) {
-  const Eigen::Vector3f q = p / map.voxelSize() - Eigen::Vector3f::Constant(0.5f);
+// The 8 voxels around p (block and index of each) and the trilinear
+// fractions; false when one is missing or has too little weight.
+bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p, float min_weight,
+                   const VoxelBlock* blocks[8], int index[8], Eigen::Vector3f& frac) {
+  const Eigen::Vector3f q = p * inv_voxel - Eigen::Vector3f::Constant(0.5f);
   const Eigen::Vector3f f = q.array().floor();
   const Eigen::Vector3i base = f.cast<int>();
   frac = q - f;
-  const BlockKey key(floorDiv(base.x(), kBlockSide), floorDiv(base.y(), kBlockSide), floorDiv(base.z(), kBlockSide));
-  const Eigen::Vector3i local = base - key * kBlockSide;
-  if (local.maxCoeff() < kBlockSide - 1) {  // all 8 inside one block: one lookup
-    const int32_t b = map.find(key);
-    if (b < 0) return false;
-    const VoxelBlock& block = map.block(b);
-    for (int c = 0; c < 8; ++c) {
-      corners[c] = &block.voxels[VoxelBlock::index(local.x() + (c & 1), local.y() + ((c >> 1) & 1),
-                                                    local.z() + ((c >> 2) & 1))];
-      if (corners[c]->weight < min_weight || corners[c]->weight <= 0) return false;
-    }
-    return true;
-  }
   for (int c = 0; c < 8; ++c) {
-    corners[c] = map.voxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1));
-    if (corners[c] == nullptr || corners[c]->weight < min_weight || corners[c]->weight <= 0) return false;
+    blocks[c] = cache.blockOfVoxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1), index[c]);
+    if (blocks[c] == nullptr) return false;
+    const float w = blocks[c]->weight[index[c]];
+    if (w < min_weight || w <= 0) return false;
   }
   return true;
 }
@@ -85,23 +77,38 @@ inline float cornerWeight(int c, const Eigen::Vector3f& f) {
 }
 }  // namespace
 
-bool TsdfMap::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) const {
-  const Voxel* corners[8];
+bool BlockCache::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) {
+  const VoxelBlock* blocks[8];
+  int index[8];
   Eigen::Vector3f f;
-  if (!gatherCorners(*this, p, min_weight, corners, f)) return false;
+  if (!gatherCorners(*this, map_->invVoxelSize(), p, min_weight, blocks, index, f)) return false;
   float s = 0;
-  for (int c = 0; c < 8; ++c) s += cornerWeight(c, f) * corners[c]->sdf_m;
+  for (int c = 0; c < 8; ++c) s += cornerWeight(c, f) * blocks[c]->sdf_m[index[c]];
   sdf = s;
   return true;
 }
 
-bool TsdfMap::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) const {
-  const Voxel* corners[8];
+bool BlockCache::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) {
+  const VoxelBlock* blocks[8];
+  int index[8];
   Eigen::Vector3f f;
-  if (!gatherCorners(*this, p, 0.0f, corners, f)) return false;
+  if (!gatherCorners(*this, map_->invVoxelSize(), p, 0.0f, blocks, index, f)) return false;
   rgb.setZero();
-  for (int c = 0; c < 8; ++c) rgb += cornerWeight(c, f) * Eigen::Vector3f(corners[c]->r, corners[c]->g, corners[c]->b);
+  for (int c = 0; c < 8; ++c) {
+    const VoxelColor& k = blocks[c]->color[index[c]];
+    rgb += cornerWeight(c, f) * Eigen::Vector3f(k.r, k.g, k.b);
+  }
   return true;
+}
+
+bool TsdfMap::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) const {
+  BlockCache cache(*this);
+  return cache.sample(p, min_weight, sdf);
+}
+
+bool TsdfMap::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) const {
+  BlockCache cache(*this);
+  return cache.sampleColor(p, rgb);
 }
 
 MapMemory TsdfMap::memory() const {

@@ -71,7 +71,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("max_weight", t.max_weight, 1, 1e4);
   v.number("max_integration_depth_m", t.max_integration_depth_m, 0.1, 100);
   v.number("min_confidence", t.min_confidence, 0, 1);
-  v.integer("allocation_stride_px", t.allocation_stride_px, 1, 16);
+  v.integer("integration_level", t.integration_level, -1, 3);
+  v.integer("allocation_stride_px", t.allocation_stride_px, 0, 16);
 
   v.section("raycast");
   v.number("min_depth_m", c.raycast.min_depth_m, 0, 100);

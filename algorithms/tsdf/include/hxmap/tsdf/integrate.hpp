@@ -30,6 +30,14 @@ struct IntegrationStats {
   size_t voxels_updated = 0;
 };
 
+/// Pyramid level whose pixels fusion reads (every 2^level-th pixel of the
+/// observation; TsdfParams::integration_level, or the automatic choice).
+int integrationLevel(const TsdfMap& map, const PinholeCamera& camera);
+
+/// Pixel stride (at the integration level) at which allocateBand samples the depth image
+/// (TsdfParams::allocation_stride_px, or the automatic choice for 0).
+int allocationStride(const TsdfMap& map, const PinholeCamera& camera);
+
 /// Blocks whose voxels the observation can update; allocates missing ones.
 std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, size_t* newly_allocated = nullptr);
 

@@ -9,9 +9,13 @@ struct TsdfParams {
   double max_weight = 64.0;         ///< fusion weight cap: keeps the map adaptive
   double max_integration_depth_m = 4.0;
   double min_confidence = 0.05;     ///< pixels below are not integrated
-  /// Pixel stride when finding blocks to allocate. A block spans >= 10 px up
-  /// to 4 m at 1 cm voxels (fx 525), so 4 misses none.
-  int allocation_stride_px = 4;
+  /// Fusion reads every 2^level-th pixel of the depth image; -1 = automatic:
+  /// 1 (half resolution) unless voxels at max_integration_depth_m would span
+  /// less than half a pixel there (fx 525, 4 m: 1 for 1 and 2 cm voxels).
+  int integration_level = -1;
+  /// Pixel stride (at that level) when finding blocks to allocate; 0 =
+  /// automatic, a third of the pixels a block spans at max_integration_depth_m.
+  int allocation_stride_px = 0;
 };
 
 /// Raycasting the map into depth, normal and color images.

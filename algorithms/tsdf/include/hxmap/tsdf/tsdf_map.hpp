@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -17,26 +18,42 @@
 
 namespace hxmap::alg {
 
-constexpr int kBlockSide = 8;
+constexpr int kBlockSide = 8;  // voxel -> block by >> 3 and & 7 below
 constexpr int kBlockVoxels = kBlockSide * kBlockSide * kBlockSide;
 
-/// One voxel: fused signed distance and weight, fused color, and running
-/// statistics (Welford) of the truncated SDF observations it received, from
-/// which the UF quality indicator takes sigma_TSDF.
+struct VoxelColor {
+  uint8_t r = 0, g = 0, b = 0, flags = 0;
+};
+
+/// Running statistics (Welford) of the truncated SDF observations a voxel
+/// received near the surface, from which the UF quality indicator takes
+/// sigma_TSDF.
+struct VoxelStats {
+  uint32_t updates = 0;
+  float mean_m = 0.0f;
+  float m2 = 0.0f;  ///< sum of squared deviations, m^2
+  float variance() const { return updates > 1 ? m2 / static_cast<float>(updates - 1) : 0.0f; }
+};
+
+/// 8^3 voxels stored as a structure of arrays. DESIGN: the hot loops
+/// (raycast marching, the geometry pass of fusion, meshing) read only sdf
+/// and weight, so those sit together in 4 KiB per block instead of being
+/// interleaved with color and statistics (24 bytes per voxel as an array of
+/// structs): one cache line holds a row of 8 voxels and fusion vectorizes.
+struct VoxelBlock {
+  float sdf_m[kBlockVoxels] = {};
+  float weight[kBlockVoxels] = {};  ///< summed confidence, capped at max_weight
+  VoxelColor color[kBlockVoxels] = {};
+  VoxelStats stats[kBlockVoxels] = {};
+  static int index(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
+};
+
+/// One voxel's values, copied out of its block (see TsdfMap::voxel).
 struct Voxel {
   float sdf_m = 0.0f;
   float weight = 0.0f;
-  uint8_t r = 0, g = 0, b = 0, flags = 0;
-  uint32_t updates = 0;
-  float update_mean_m = 0.0f;
-  float update_m2 = 0.0f;  ///< sum of squared deviations, m^2
-
-  float updateVariance() const { return updates > 1 ? update_m2 / static_cast<float>(updates - 1) : 0.0f; }
-};
-
-struct VoxelBlock {
-  Voxel voxels[kBlockVoxels];
-  static int index(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
+  VoxelColor color;
+  VoxelStats stats;
 };
 
 using BlockKey = Eigen::Vector3i;
@@ -53,6 +70,7 @@ class TsdfMap {
 
   const TsdfParams& params() const { return params_; }
   float voxelSize() const { return voxel_size_; }
+  float invVoxelSize() const { return inv_voxel_size_; }
   float blockSize() const { return voxel_size_ * kBlockSide; }
   float truncation() const { return truncation_; }
 
@@ -88,8 +106,17 @@ class TsdfMap {
   Eigen::Vector3f voxelCenter(const Eigen::Vector3i& voxel) const {
     return (voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * voxel_size_;
   }
-  /// Voxel by global coordinates, or nullptr when its block is not allocated.
-  const Voxel* voxel(const Eigen::Vector3i& global) const;
+  /// Voxel by global coordinates; false when its block is not allocated.
+  bool voxel(const Eigen::Vector3i& global, Voxel& out) const;
+  /// The block holding a global voxel and the voxel's index in it, or
+  /// nullptr when not allocated.
+  const VoxelBlock* blockOfVoxel(const Eigen::Vector3i& global, int& index) const {
+    const BlockKey key(global.x() >> 3, global.y() >> 3, global.z() >> 3);  // floor division by 8
+    const int32_t b = find(key);
+    if (b < 0) return nullptr;
+    index = VoxelBlock::index(global.x() & 7, global.y() & 7, global.z() & 7);
+    return &blocks_[b];
+  }
 
   /// Trilinear SDF at p from the 8 surrounding voxel centers; false when any
   /// of them is unallocated or has weight < min_weight.
@@ -118,6 +145,40 @@ class TsdfMap {
   std::vector<BlockKey> keys_;
   std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
+};
+
+/// Block lookups through a small direct-mapped cache, for runs of nearby
+/// queries (one ray, one neighbourhood): the 8 blocks around a corner fall
+/// in distinct slots. One per thread; valid while the map is not modified.
+class BlockCache {
+ public:
+  explicit BlockCache(const TsdfMap& map) : map_(&map) {}
+  const VoxelBlock* get(const BlockKey& key) {
+    Entry& e = entries_[(key.x() & 1) | ((key.y() & 1) << 1) | ((key.z() & 1) << 2)];
+    if (!(e.key == key)) {
+      e.key = key;
+      const int32_t b = map_->find(key);
+      e.block = b >= 0 ? &map_->block(b) : nullptr;
+    }
+    return e.block;
+  }
+  /// The block holding a global voxel and the voxel's index in it.
+  const VoxelBlock* blockOfVoxel(const Eigen::Vector3i& g, int& index) {
+    index = VoxelBlock::index(g.x() & 7, g.y() & 7, g.z() & 7);
+    return get(BlockKey(g.x() >> 3, g.y() >> 3, g.z() >> 3));
+  }
+  /// Trilinear SDF at p from the 8 surrounding voxel centers; false when any
+  /// of them is unallocated or has weight < min_weight (or none).
+  bool sample(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m);
+  bool sampleColor(const Eigen::Vector3f& p_world, Eigen::Vector3f& rgb);
+
+ private:
+  struct Entry {
+    BlockKey key{std::numeric_limits<int>::min(), 0, 0};
+    const VoxelBlock* block = nullptr;
+  };
+  const TsdfMap* map_;
+  Entry entries_[8];
 };
 
 inline int floorDiv(int a, int b) { return (a >= 0) ? a / b : -((-a + b - 1) / b); }
