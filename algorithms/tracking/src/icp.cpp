@@ -1,6 +1,8 @@
 #include "hxmap/tracking/icp.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <iterator>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -9,23 +11,67 @@ namespace hxmap::alg {
 
 namespace {
 
+// J^T W J and J^T W r of 6-dof residuals. DESIGN: terms are summed in
+// float (21 + 6 multiply-adds per residual, unrolled) and flushed into
+// double every row, which keeps float sums short (at most a few hundred
+// terms) and costs a third of Eigen's double rankUpdate.
+class NormalEquations {
+ public:
+  void add(const float J[6], float w, float r) {
+    int k = 0;
+    for (int i = 0; i < 6; ++i) {
+      const float wj = w * J[i];
+      for (int j = i; j < 6; ++j) h_[k++] += wj * J[j];
+      g_[i] += wj * r;
+    }
+  }
+  void flush() {
+    for (int k = 0; k < 21; ++k) H_[k] += h_[k];
+    for (int i = 0; i < 6; ++i) b_[i] += g_[i];
+    std::fill(std::begin(h_), std::end(h_), 0.0f);
+    std::fill(std::begin(g_), std::end(g_), 0.0f);
+  }
+  /// Both triangles; call after the last flush.
+  Matrix6d H() const {
+    Matrix6d H;
+    int k = 0;
+    for (int i = 0; i < 6; ++i) {
+      for (int j = i; j < 6; ++j) H(i, j) = H(j, i) = H_[k++];
+    }
+    return H;
+  }
+  Vector6d b() const { return Vector6d(b_); }
+
+ private:
+  float h_[21] = {}, g_[6] = {};
+  double H_[21] = {}, b_[6] = {};
+};
+
 struct Accumulation {
-  Matrix6d H = Matrix6d::Zero();
-  Vector6d b = Vector6d::Zero();
+  NormalEquations eq;
   double sq_sum = 0;
   int inliers = 0;
 };
 
-Accumulation accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Isometry3f& T,
-                        const TrackingParams& params, int stride) {
-  Accumulation acc;
+// Nearest pixel of x in [-0.5, size - 0.5), or -1: floor(x + 0.5) by
+// truncation, no libm call.
+inline int nearestPixel(float x, int size) {
+  const float y = x + 0.5f;
+  return y >= 0.0f && y < static_cast<float>(size) ? static_cast<int>(y) : -1;
+}
+
+void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Isometry3f& T,
+                const TrackingParams& params, int stride, Accumulation& acc) {
   const Eigen::Isometry3f T_ref_world = model.T_world_cam.inverse();
   const Eigen::Isometry3f T_ref_cam = T_ref_world * T;
   const float max_d = static_cast<float>(params.max_correspondence_distance_m);
   const float cos_max = static_cast<float>(std::cos(params.max_normal_angle_deg * M_PI / 180.0));
   const float huber = static_cast<float>(params.huber_delta_m);
   const PinholeCamera& mc = model.camera;
+  const float fx = static_cast<float>(mc.fx), fy = static_cast<float>(mc.fy);
+  const float cx = static_cast<float>(mc.cx), cy = static_cast<float>(mc.cy);
   const int mw = mc.width, mh = mc.height;
+  const Eigen::Matrix3f R = T.linear();
   for (int v = 0; v < level.vertex.rows; v += stride) {
     const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
     const auto* nrow = level.normal.ptr<cv::Vec3f>(v);
@@ -38,33 +84,31 @@ Accumulation accumulate(const FrameLevel& level, const ModelView& model, const E
       const Eigen::Vector3f p_cam(pc[0], pc[1], pc[2]);
       const Eigen::Vector3f p_ref = T_ref_cam * p_cam;
       if (p_ref.z() <= 0) continue;
-      const int mu = static_cast<int>(std::lround(mc.fx * p_ref.x() / p_ref.z() + mc.cx));
-      const int mv = static_cast<int>(std::lround(mc.fy * p_ref.y() / p_ref.z() + mc.cy));
-      if (mu < 0 || mv < 0 || mu >= mw || mv >= mh) continue;
+      const float inv_z = 1.0f / p_ref.z();
+      const int mu = nearestPixel(fx * p_ref.x() * inv_z + cx, mw);
+      const int mv = nearestPixel(fy * p_ref.y() * inv_z + cy, mh);
+      if (mu < 0 || mv < 0) continue;
       const cv::Vec3f& qn = model.normal_world.ptr<cv::Vec3f>(mv)[mu];
       if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
       const cv::Vec3f& qv = model.vertex_world.ptr<cv::Vec3f>(mv)[mu];
       const Eigen::Vector3f q(qv[0], qv[1], qv[2]), n(qn[0], qn[1], qn[2]);
       const Eigen::Vector3f x = T * p_cam;
       if ((x - q).squaredNorm() > max_d * max_d) continue;
-      const Eigen::Vector3f n_obs = T.linear() * Eigen::Vector3f(nc[0], nc[1], nc[2]);
+      const Eigen::Vector3f n_obs = R * Eigen::Vector3f(nc[0], nc[1], nc[2]);
       const float cos_n = n_obs.dot(n);
       if (cos_n < cos_max) continue;
       const float r = n.dot(x - q);
       const float ar = std::abs(r);
       const float w_robust = ar <= huber ? 1.0f : huber / ar;
       // w(p): observation confidence and normal consistency.
-      const double w = static_cast<double>(crow[u]) * cos_n * w_robust;
-      Vector6d J;
-      J.head<3>() = x.cross(n).cast<double>();
-      J.tail<3>() = n.cast<double>();
-      acc.H.selfadjointView<Eigen::Lower>().rankUpdate(J, w);
-      acc.b += w * static_cast<double>(r) * J;
+      const Eigen::Vector3f xn = x.cross(n);
+      const float J[6] = {xn.x(), xn.y(), xn.z(), n.x(), n.y(), n.z()};
+      acc.eq.add(J, crow[u] * cos_n * w_robust, r);
       acc.sq_sum += static_cast<double>(r) * r;
       ++acc.inliers;
     }
+    acc.eq.flush();
   }
-  return acc;  // lower triangle only; the caller mirrors it
 }
 
 inline float bilinear(const cv::Mat& img, float u, float v) {
@@ -113,14 +157,12 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const E
       // d r / d omega = (a x y)^T, d r / d v = -a^T with a = R g.
       const Eigen::Vector3f y = T_world_ref * p_ref;
       const Eigen::Vector3f a = R * g;
-      Vector6d J;
-      J.head<3>() = (scale * a.cross(y)).cast<double>();
-      J.tail<3>() = (-scale * a).cast<double>();
+      const Eigen::Vector3f ay = scale * a.cross(y);
+      const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
       const float ar = std::abs(r);
-      const double w = static_cast<double>(crow[u]) * (ar <= huber ? 1.0f : huber / ar);
-      acc.H.selfadjointView<Eigen::Lower>().rankUpdate(J, w);
-      acc.b += w * static_cast<double>(scale * r) * J;
+      acc.eq.add(J, crow[u] * (ar <= huber ? 1.0f : huber / ar), scale * r);
     }
+    acc.eq.flush();
   }
 }
 
@@ -144,17 +186,16 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   for (int l = levels - 1; l >= 0; --l) {
     const int iters = l < 3 ? iterations[l] : params.iterations_level2;
     for (int it = 0; it < iters; ++it) {
-      Accumulation acc =
-          accumulate(frame.levels[l], model[l], T.cast<float>(), params, l == 0 ? params.icp_stride_level0 : 1);
+      Accumulation acc;
+      accumulate(frame.levels[l], model[l], T.cast<float>(), params, l == 0 ? params.icp_stride_level0 : 1, acc);
       ++result.iterations;
       if (acc.inliers < 6) break;
       if (use_photometric && static_cast<size_t>(l) < reference.frame->levels.size()) {
         accumulatePhotometric(frame.levels[l], reference.frame->levels[l], reference.T_world_cam.cast<float>(),
                               T.cast<float>(), params, l == 0 ? params.photometric_stride_level0 : 1, acc);
       }
-      acc.H.triangularView<Eigen::Upper>() = acc.H.transpose();  // both passes fill the lower triangle
-      Eigen::LDLT<Matrix6d> ldlt(acc.H);
-      const Vector6d xi = -ldlt.solve(acc.b);
+      Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
+      const Vector6d xi = -ldlt.solve(acc.eq.b());
       if (!xi.allFinite()) break;
       T = expSE3(xi) * T;
       if (xi.head<3>().norm() < params.convergence_rotation_rad && xi.tail<3>().norm() < params.convergence_translation_m) {
@@ -162,13 +203,16 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       }
     }
   }
-  // Final evaluation at full resolution decides success.
-  Accumulation last = accumulate(frame.levels[0], model[0], T.cast<float>(), params, 1);
+  // A final evaluation at full resolution decides success (at the level-0
+  // stride; inlier counts are scaled to every pixel).
+  Accumulation last;
+  const int final_stride = std::max(1, params.icp_stride_level0);
+  accumulate(frame.levels[0], model[0], T.cast<float>(), params, final_stride, last);
+  last.inliers *= final_stride * final_stride;
   result.inliers = last.inliers;
-  result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum / last.inliers) : 0.0;
-  last.H.triangularView<Eigen::Upper>() = last.H.transpose();
-  result.information = last.H;
-  Eigen::SelfAdjointEigenSolver<Matrix6d> eig(last.H);
+  result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum * final_stride * final_stride / last.inliers) : 0.0;
+  result.information = last.eq.H() * static_cast<double>(final_stride * final_stride);
+  Eigen::SelfAdjointEigenSolver<Matrix6d> eig(result.information);
   const double emax = eig.eigenvalues().maxCoeff();
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
   const Eigen::Isometry3d motion = T_init.inverse() * T;
