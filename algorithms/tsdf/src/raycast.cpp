@@ -67,6 +67,22 @@ void tileBounds(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isome
   }
 }
 
+// The surface between ta (sdf sa > 0) and tb (sb <= 0): the secant, then
+// one more trilinear sample and the secant on the side that brackets.
+float refineCrossing(BlockCache& cache, const Eigen::Vector3f& origin, const Eigen::Vector3f& dir, float min_w,
+                     float ta, float sa, float tb, float sb) {
+  float th = ta + (tb - ta) * sa / (sa - sb);
+  float s_mid = 0;
+  if (cache.sample(origin + th * dir, min_w, s_mid)) {
+    if (s_mid > 0 && sb < 0) {
+      th = th + (tb - th) * s_mid / (s_mid - sb);
+    } else if (s_mid < 0 && sa > 0) {
+      th = ta + (th - ta) * sa / (sa - s_mid);
+    }
+  }
+  return th;
+}
+
 }  // namespace
 
 ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3f& T_world_cam,
@@ -102,27 +118,40 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         const float len = ray_cam.norm();
         const Eigen::Vector3f dir = R * ray_cam / len;
         const Eigen::Vector3f inv_dir = dir.cwiseInverse();
-        // Depth z along the optical axis is t / len along the ray. A hinted
-        // ray starts before the predicted surface; should its first sample
-        // lie behind a surface already, it starts over from the tile bound.
+        // Depth z along the optical axis is t / len along the ray.
         const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
-        float t = tile_start;
-        bool from_hint = false;
-        if (hinted) {
-          const float zh = depth_hint.ptr<float>(v)[u];
-          if (zh > 0.0f) {
-            const float start = (zh - mu - 2.0f * vs) * len;
-            if (start > t) {
-              t = start;
-              from_hint = true;
-            }
+        const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
+        const float zh = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
+        float hit = -1;
+        if (zh > 0.0f) {
+          // DESIGN: the hint is the depth just fused at (nearly) this pose,
+          // so the surface is almost always within a voxel of it. Bracket
+          // it directly with trilinear samples 1.5 voxels either side (the
+          // truncated SDF is linear there) and refine: three samples, no
+          // march. Only rays without such a bracket march below.
+          const float ta = (zh - 1.5f * vs) * len, tb = (zh + 1.5f * vs) * len;
+          float sa = 0, sb = 0;
+          if (ta > tile_start && cache.sample(origin + ta * dir, min_w, sa) && sa > 0 &&
+              cache.sample(origin + tb * dir, min_w, sb) && sb <= 0) {
+            hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
           }
         }
-        const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
+        // March: nearest-voxel samples, steps of the SDF, block skipping. A
+        // hinted ray starts before the predicted surface; should its first
+        // sample lie behind a surface already, it starts over from the tile
+        // bound.
+        float t = tile_start;
+        bool from_hint = false;
+        if (hit < 0 && zh > 0.0f) {
+          const float start = (zh - mu - 2.0f * vs) * len;
+          if (start > t) {
+            t = start;
+            from_hint = true;
+          }
+        }
         float prev_t = -1, prev_sdf = 0;
-        float hit = -1;
         int guard = 0;
-        while (t < t_max && ++guard < 4096) {
+        while (hit < 0 && t < t_max && ++guard < 4096) {
           const Eigen::Vector3f p = origin + t * dir;
           const Eigen::Vector3i g = map.voxelOf(p);
           int vi = 0;
@@ -151,7 +180,7 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
             // Crossing between prev_t and t (nearest-voxel values). Trilinear
             // samples at both ends; where they do not bracket the surface
             // (it may lie up to a voxel outside), move the ends outwards in
-            // half-voxel steps. Typically two or three samples per ray.
+            // half-voxel steps.
             float ta = prev_t, tb = t, sa = 0, sb = 0;
             bool ok_a = cache.sample(origin + ta * dir, min_w, sa);
             for (int k = 0; k < 3 && ok_a && sa <= 0; ++k) {
@@ -163,20 +192,10 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
               tb += 0.5f * vs;
               ok_b = cache.sample(origin + tb * dir, min_w, sb);
             }
-            if (!(ok_a && ok_b && sa > 0 && sb <= 0)) ta = -1;
             // No trilinear bracket (the edge of the observed surface, where
             // neighbours are missing): no hit rather than an imprecise one.
-            if (ta < 0) break;
-            float th_ = ta + (tb - ta) * sa / (sa - sb);
-            float s_mid = 0;
-            if (cache.sample(origin + th_ * dir, min_w, s_mid)) {
-              if (s_mid > 0 && sb < 0) {
-                th_ = th_ + (tb - th_) * s_mid / (s_mid - sb);
-              } else if (s_mid < 0 && sa > 0) {
-                th_ = ta + (th_ - ta) * sa / (sa - s_mid);
-              }
-            }
-            hit = th_;
+            if (!(ok_a && ok_b && sa > 0 && sb <= 0)) break;
+            hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
             break;
           }
           prev_t = t;

@@ -63,6 +63,19 @@ bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p,
   const Eigen::Vector3f f = q.array().floor();
   const Eigen::Vector3i base = f.cast<int>();
   frac = q - f;
+  if ((base.x() & 7) < 7 && (base.y() & 7) < 7 && (base.z() & 7) < 7) {
+    // All 8 in one block (343 of 512 positions): one lookup, fixed offsets.
+    int i0 = 0;
+    const VoxelBlock* blk = cache.blockOfVoxel(base, i0);
+    if (blk == nullptr) return false;
+    for (int c = 0; c < 8; ++c) {
+      blocks[c] = blk;
+      index[c] = i0 + (c & 1) + ((c >> 1) & 1) * kBlockSide + ((c >> 2) & 1) * kBlockSide * kBlockSide;
+      const float w = blk->weight[index[c]];
+      if (w < min_weight || w <= 0) return false;
+    }
+    return true;
+  }
   for (int c = 0; c < 8; ++c) {
     blocks[c] = cache.blockOfVoxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1), index[c]);
     if (blocks[c] == nullptr) return false;
