@@ -104,7 +104,7 @@ int main(int argc, char** argv) {
       alg::TsdfMap map(tp);
       for (size_t i = 0; i < frames.size(); ++i) {
         const auto pre = alg::preprocessFrame(frames[i], d.camera(), alg::PreprocessParams{});
-        const alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[0].confidence, d.camera(),
+        const alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, d.camera(),
                                         poses[i].T_world_cam.cast<float>()};
         const auto t0 = Clock::now();
         const auto st = alg::integrate(map, obs);

@@ -119,9 +119,12 @@ inline float bilinear(const cv::Mat& img, float u, float v) {
   return (1 - b) * ((1 - a) * r0[0] + a * r0[1]) + b * ((1 - a) * r1[0] + a * r1[1]);
 }
 
-// Photometric residuals r = I_cur(pi(T^-1 T_ref p_ref)) - I_ref(p_ref), added to acc.
-void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const Eigen::Isometry3f& T_world_ref,
-                           const Eigen::Isometry3f& T, const TrackingParams& params, int stride, Accumulation& acc) {
+// Photometric residuals r = I_cur(pi(T^-1 T_ref p_ref)) - I_ref(p_ref), added
+// to acc. Reference points come from the level's depth; their confidence from
+// `ref_conf`, which may be `conf_shift` levels coarser.
+void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const cv::Mat& ref_conf, int conf_shift,
+                           const Eigen::Isometry3f& T_world_ref, const Eigen::Isometry3f& T,
+                           const TrackingParams& params, int stride, Accumulation& acc) {
   const Eigen::Isometry3f T_cur_world = T.inverse();
   const Eigen::Matrix3f R = T.linear();
   const Eigen::Isometry3f T_cur_ref = T_cur_world * T_world_ref;
@@ -131,14 +134,19 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const E
   const float huber = static_cast<float>(params.photometric_huber);
   const float gmin2 = static_cast<float>(params.photometric_min_gradient * params.photometric_min_gradient);
   const float W = static_cast<float>(cur.intensity.cols - 2), H = static_cast<float>(cur.intensity.rows - 2);
-  for (int v = 0; v < ref.vertex.rows; v += stride) {
-    const auto* vrow = ref.vertex.ptr<cv::Vec3f>(v);
+  const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
+  const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
+  const int conf_cols = ref_conf.cols;
+  for (int v = 0; v < ref.depth.rows; v += stride) {
+    const float* drow = ref.depth.ptr<float>(v);
     const float* irow = ref.intensity.ptr<float>(v);
-    const float* crow = ref.confidence.ptr<float>(v);
-    for (int u = 0; u < ref.vertex.cols; u += stride) {
-      const cv::Vec3f& pr = vrow[u];
-      if (pr[2] <= 0 || crow[u] <= 0) continue;
-      const Eigen::Vector3f p_ref(pr[0], pr[1], pr[2]);
+    const int cv_row = std::min(v >> conf_shift, ref_conf.rows - 1);
+    const float* crow = ref_conf.ptr<float>(cv_row);
+    for (int u = 0; u < ref.depth.cols; u += stride) {
+      const float z = drow[u];
+      const float conf = crow[std::min(u >> conf_shift, conf_cols - 1)];
+      if (!(z > 0) || conf <= 0) continue;
+      const Eigen::Vector3f p_ref((static_cast<float>(u) - rcx) * rfx * z, (static_cast<float>(v) - rcy) * rfy * z, z);
       const Eigen::Vector3f pc = T_cur_ref * p_ref;
       if (pc.z() <= 0.05f) continue;
       const float inv_z = 1.0f / pc.z();
@@ -160,7 +168,7 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const E
       const Eigen::Vector3f ay = scale * a.cross(y);
       const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
       const float ar = std::abs(r);
-      acc.eq.add(J, crow[u] * (ar <= huber ? 1.0f : huber / ar), scale * r);
+      acc.eq.add(J, conf * (ar <= huber ? 1.0f : huber / ar), scale * r);
     }
     acc.eq.flush();
   }
@@ -177,22 +185,32 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     result.failure = "no model or no frame";
     return result;
   }
-  result.model_pixels = model[0].valid_pixels;
   const int levels = static_cast<int>(std::min(model.size(), frame.levels.size()));
-  const int iterations[3] = {params.iterations_level0, params.iterations_level1, params.iterations_level2};
+  // Tracking runs from the coarsest level down to the frame's finest
+  // preprocessed one; pixel counts below are at that level.
+  const int finest = std::clamp(frame.finest, 0, levels - 1);
+  result.model_pixels = model[finest].valid_pixels;
+  const int iterations[3] = {params.iterations_finest, params.iterations_middle, params.iterations_coarsest};
   Eigen::Isometry3d T = T_init;
   const bool use_photometric = reference.frame != nullptr && params.photometric_scale_m > 0 &&
                                frame.has_color && reference.frame->has_color;
-  for (int l = levels - 1; l >= 0; --l) {
-    const int iters = l < 3 ? iterations[l] : params.iterations_level2;
+  for (int l = levels - 1; l >= finest; --l) {
+    const int iters = iterations[std::min(l - finest, 2)];
+    const int stride = l == finest ? params.icp_stride_finest : 1;
+    const int photometric_stride = l == finest ? std::max(1, params.photometric_stride_finest) : 1;
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
-      accumulate(frame.levels[l], model[l], T.cast<float>(), params, l == 0 ? params.icp_stride_level0 : 1, acc);
+      accumulate(frame.levels[l], model[l], T.cast<float>(), params, stride, acc);
       ++result.iterations;
       if (acc.inliers < 6) break;
       if (use_photometric && static_cast<size_t>(l) < reference.frame->levels.size()) {
-        accumulatePhotometric(frame.levels[l], reference.frame->levels[l], reference.T_world_cam.cast<float>(),
-                              T.cast<float>(), params, l == 0 ? params.photometric_stride_level0 : 1, acc);
+        // At the finest level, intensity at full resolution where the frames
+        // have it (finer texture than the geometry's level).
+        const int pl = l == finest && !frame.levels[0].intensity.empty() &&
+                               !reference.frame->levels[0].intensity.empty() ? 0 : l;
+        accumulatePhotometric(frame.levels[pl], reference.frame->levels[pl], reference.frame->levels[l].confidence,
+                              l - pl, reference.T_world_cam.cast<float>(), T.cast<float>(), params,
+                              photometric_stride, acc);
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());
@@ -203,11 +221,11 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       }
     }
   }
-  // A final evaluation at full resolution decides success (at the level-0
-  // stride; inlier counts are scaled to every pixel).
+  // A final evaluation at the finest level decides success (at its stride;
+  // inlier counts are scaled to every pixel of that level).
   Accumulation last;
-  const int final_stride = std::max(1, params.icp_stride_level0);
-  accumulate(frame.levels[0], model[0], T.cast<float>(), params, final_stride, last);
+  const int final_stride = std::max(1, params.icp_stride_finest);
+  accumulate(frame.levels[finest], model[finest], T.cast<float>(), params, final_stride, last);
   last.inliers *= final_stride * final_stride;
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum * final_stride * final_stride / last.inliers) : 0.0;
@@ -217,7 +235,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
   const Eigen::Isometry3d motion = T_init.inverse() * T;
   if (last.inliers < params.min_inliers ||
-      last.inliers < params.min_inlier_ratio * std::max(1, std::min(result.model_pixels, frame.valid_pixels))) {
+      last.inliers < params.min_inlier_ratio *
+                         std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)))) {
     result.failure = "too few inliers (" + std::to_string(last.inliers) + ")";
   } else if (result.rms_residual_m > params.max_rms_residual_m) {
     result.failure = "residual too large (" + std::to_string(result.rms_residual_m * 1000) + " mm rms)";

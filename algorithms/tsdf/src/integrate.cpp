@@ -58,6 +58,14 @@ struct PackedDepth {
   const Pixel& at(int u, int v) const { return pixels[static_cast<size_t>(v) * width + u]; }
 };
 
+// Confidence may come at a pyramid level of the depth: pixel (u, v) reads
+// (u >> shift, v >> shift).
+int confidenceShift(const DepthObservation& obs) {
+  int shift = 0;
+  while (shift < 4 && (obs.confidence.cols << shift) < obs.depth_m.cols) ++shift;
+  return shift;
+}
+
 PackedDepth packObservation(const TsdfMap& map, const DepthObservation& obs) {
   PackedDepth out;
   out.level = integrationLevel(map, obs.camera);
@@ -73,14 +81,15 @@ PackedDepth packObservation(const TsdfMap& map, const DepthObservation& obs) {
   const float max_depth = static_cast<float>(map.params().max_integration_depth_m);
   const float min_conf = static_cast<float>(map.params().min_confidence);
   const bool has_conf = !obs.confidence.empty(), has_rgb = !obs.rgb.empty();
+  const int cs = confidenceShift(obs);
   for (int v = 0; v < out.height; ++v) {
     const float* drow = obs.depth_m.ptr<float>(v * step);
-    const float* crow = has_conf ? obs.confidence.ptr<float>(v * step) : nullptr;
+    const float* crow = has_conf ? obs.confidence.ptr<float>((v * step) >> cs) : nullptr;
     const uint8_t* rgb = has_rgb ? obs.rgb.ptr<uint8_t>(v * step) : nullptr;
     PackedDepth::Pixel* o = &out.pixels[static_cast<size_t>(v) * out.width];
     for (int u = 0; u < out.width; ++u) {
       const float d = drow[u * step];
-      const float c = crow ? crow[u * step] : 1.0f;
+      const float c = crow ? crow[(u * step) >> cs] : 1.0f;
       const bool ok = d > 0.0f && d <= max_depth && c >= min_conf && c > 0.0f;
       o[u].depth_m = ok ? d : 0.0f;
       o[u].confidence = ok ? c : 0.0f;
@@ -271,7 +280,8 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
       if (!(d > 0) || d > map.params().max_integration_depth_m) continue;
       const double sdf = d - p.z();
       if (sdf < -mu) continue;
-      const double c = obs.confidence.empty() ? 1.0 : obs.confidence.at<float>(vi, ui);
+      const int cs = confidenceShift(obs);
+      const double c = obs.confidence.empty() ? 1.0 : obs.confidence.at<float>(vi >> cs, ui >> cs);
       if (c < map.params().min_confidence || c <= 0) continue;
       const uint8_t* rgb = obs.rgb.empty() ? nullptr : obs.rgb.ptr<uint8_t>(vi) + 3 * ui;
       const float tsdf = static_cast<float>(std::min(sdf, mu));

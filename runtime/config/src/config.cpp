@@ -57,6 +57,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("bilateral_radius_px", p.bilateral_radius_px, 0, 10);
   v.number("bilateral_sigma_px", p.bilateral_sigma_px, 0.1, 20);
   v.number("bilateral_sigma_depth_factor", p.bilateral_sigma_depth_factor, 0.1, 100);
+  v.integer("finest_level", p.finest_level, 0, 2);
   v.integer("pyramid_levels", p.pyramid_levels, 1, 5);
   v.number("noise_sigma_a_m", p.noise_sigma_a_m, 1e-6, 1);
   v.number("noise_sigma_b_per_m", p.noise_sigma_b_per_m, 0, 1);
@@ -86,18 +87,18 @@ void visit(HxmapConfig& c, Visitor& v) {
 
   auto& k = c.tracking;
   v.section("tracking");
-  v.integer("iterations_level0", k.iterations_level0, 0, 100);
-  v.integer("iterations_level1", k.iterations_level1, 0, 100);
-  v.integer("iterations_level2", k.iterations_level2, 0, 100);
+  v.integer("iterations_finest", k.iterations_finest, 0, 100);
+  v.integer("iterations_middle", k.iterations_middle, 0, 100);
+  v.integer("iterations_coarsest", k.iterations_coarsest, 0, 100);
   v.integer("model_level", k.model_level, 0, 4);
-  v.integer("icp_stride_level0", k.icp_stride_level0, 1, 16);
+  v.integer("icp_stride_finest", k.icp_stride_finest, 1, 16);
   v.number("max_correspondence_distance_m", k.max_correspondence_distance_m, 0.001, 2);
   v.number("max_normal_angle_deg", k.max_normal_angle_deg, 1, 90);
   v.number("huber_delta_m", k.huber_delta_m, 1e-5, 1);
   v.number("photometric_scale_m", k.photometric_scale_m, 0, 10);
   v.number("photometric_huber", k.photometric_huber, 1e-4, 1);
   v.number("photometric_min_gradient", k.photometric_min_gradient, 0, 1);
-  v.integer("photometric_stride_level0", k.photometric_stride_level0, 1, 16);
+  v.integer("photometric_stride_finest", k.photometric_stride_finest, 1, 16);
   v.number("convergence_translation_m", k.convergence_translation_m, 0, 1);
   v.number("convergence_rotation_rad", k.convergence_rotation_rad, 0, 1);
   v.number("min_inlier_ratio", k.min_inlier_ratio, 0, 1);

@@ -67,7 +67,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   // 3. Integrate the range-gated depth with per-pixel confidence.
   {
     StageTimer t(r.stage_ms[kIntegrate]);
-    alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[0].confidence, camera_, T.cast<float>()};
+    alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, camera_, T.cast<float>()};
     alg::integrate(map_, obs, parallel_);
   }
   velocity_ = initialized_ ? T_last_.inverse() * T : Eigen::Isometry3d::Identity();
@@ -97,7 +97,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
 
 void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   model_.clear();
-  const int levels = std::clamp(params_.preprocess.pyramid_levels, 1, 5);
+  const int levels = static_cast<int>(fused.levels.size());
   // The model is raycast at pyramid level `model_level` (the fused frame's
   // depth at that level as the hint); finer tracking levels associate into
   // that same view, coarser ones into subsampled copies.

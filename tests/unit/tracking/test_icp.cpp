@@ -26,7 +26,7 @@ class IcpTest : public ::testing::Test {
     for (int i = first; i <= last; i += 2) {
       const auto f = test::syntheticFrame(scene_, cam_, traj_[i].T_world_cam);
       const auto pre = preprocessFrame(f, cam_, pp_);
-      integrate(map, {pre.depth_m, pre.rgb, pre.levels[0].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
+      integrate(map, {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
     }
     return map;
   }
@@ -52,7 +52,7 @@ TEST_F(IcpTest, RecoversKnownPerturbation) {
   const auto frame = test::syntheticFrame(scene_, cam_, T_true);
   const auto pre = preprocessFrame(frame, cam_, pp_);
   TrackingParams tp;
-  tp.iterations_level0 = 10;
+  tp.iterations_finest = 10;
   const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp);
   ASSERT_TRUE(r.ok) << r.failure;
   const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
@@ -71,7 +71,7 @@ TEST_F(IcpTest, PhotometricTermAloneRecoversPerturbation) {
   const auto ref = preprocessFrame(test::syntheticFrame(scene_, cam_, T_ref), cam_, pp_);
   const auto pre = preprocessFrame(test::syntheticFrame(scene_, cam_, T_true), cam_, pp_);
   TrackingParams tp;
-  tp.iterations_level0 = 15;
+  tp.iterations_finest = 15;
   tp.photometric_scale_m = 100.0;
   tp.max_rms_residual_m = 1.0;
   const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp, {&ref, T_ref});

@@ -23,7 +23,7 @@ DepthObservation observation(const drv::SyntheticScene& scene, const Eigen::Isom
   sp.noise = noise;
   const auto f = drv::renderFrame(scene, kCam, T, sp, index);
   const auto pre = preprocessFrame({0, 0, f.rgb, f.depth}, kCam, PreprocessParams{});
-  return {pre.depth_m, pre.rgb, pre.levels[0].confidence, kCam, T.cast<float>()};
+  return {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, kCam, T.cast<float>()};
 }
 
 TEST(TsdfIntegration, OptimizedKernelAgreesWithReference) {

@@ -15,7 +15,8 @@
 namespace hxmap::alg {
 
 /// One pyramid level, camera frame. Invalid pixels have depth 0, vertex z 0
-/// and a zero normal.
+/// and a zero normal. Levels finer than PreprocessParams::finest_level hold
+/// only camera and depth (range-gated, not denoised); the other maps are empty.
 struct FrameLevel {
   PinholeCamera camera;
   cv::Mat depth;       ///< CV_32F meters (denoised)
@@ -33,6 +34,7 @@ struct PreprocessedFrame {
   cv::Mat rgb;         ///< CV_8UC3
   cv::Mat intensity;   ///< CV_32F in [0, 1]
   std::vector<FrameLevel> levels;  ///< levels[0] is full resolution
+  int finest = 0;                  ///< first level with normals and confidence
   bool has_color = false;          ///< false: rgb/intensity are black placeholders
   int valid_pixels = 0;            ///< valid depth pixels at level 0
   int rejected_pixels = 0;         ///< non-finite, negative or out-of-range depth removed

@@ -6,9 +6,9 @@ namespace hxmap::alg {
 struct TrackingParams {
   /// Gauss-Newton iterations at most per level; most frames converge
   /// sooner (convergence_* below).
-  int iterations_level0 = 4;   ///< full resolution
-  int iterations_level1 = 4;
-  int iterations_level2 = 8;   ///< coarsest of three levels
+  int iterations_finest = 4;    ///< the frame's finest preprocessed level
+  int iterations_middle = 4;
+  int iterations_coarsest = 8;  ///< the third level and coarser
   /// Pyramid level at which the model is raycast for tracking; finer levels
   /// associate into it. 1 (half resolution) costs a quarter of the rays and
   /// measured the same accuracy as 0 (ATE orbit/sweep/TUM 0.15/0.14/0.53 cm
@@ -17,7 +17,7 @@ struct TrackingParams {
   /// Pixel stride of point-to-plane terms at full resolution. 2 is faster and
   /// measured more accurate than 1 (ATE orbit/sweep/TUM 0.14/0.13/0.53 cm vs
   /// 0.18/0.14/0.60; 3: 0.18/0.14/0.52).
-  int icp_stride_level0 = 2;
+  int icp_stride_finest = 1;
   double max_correspondence_distance_m = 0.1;  ///< tau_d
   double max_normal_angle_deg = 30.0;          ///< tau_n
   double huber_delta_m = 0.01;                 ///< robust loss rho
@@ -31,7 +31,9 @@ struct TrackingParams {
   double photometric_scale_m = 0.5;
   double photometric_huber = 0.05;         ///< robust loss threshold, intensity units
   double photometric_min_gradient = 0.01;  ///< pixels with flatter intensity are not used
-  int photometric_stride_level0 = 2;       ///< pixel stride at full resolution (cost)
+  /// Pixel stride of photometric terms at the finest level, which uses
+  /// full-resolution intensity when the frames have it (cost).
+  int photometric_stride_finest = 2;
   /// A level stops when the step is below both. Measured (ATE orbit/sweep/
   /// TUM): 1e-5 -> 0.14/0.13/0.53 cm at 18 iterations per frame; 1e-4 ->
   /// 0.15/0.13/0.53 cm at about half the iterations; 2e-4 -> 0.18 cm orbit.

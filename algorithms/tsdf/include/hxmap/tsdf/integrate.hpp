@@ -15,7 +15,9 @@
 namespace hxmap::alg {
 
 /// Inputs of one integration. depth_m CV_32F (0 = invalid), rgb CV_8UC3 or
-/// empty, confidence CV_32F in [0, 1] or empty (then 1 everywhere).
+/// empty, confidence CV_32F in [0, 1] or empty (then 1 everywhere), at the
+/// depth's size or a pyramid level of it (then pixel (u, v) takes the
+/// confidence of (u >> k, v >> k)).
 struct DepthObservation {
   cv::Mat depth_m;
   cv::Mat rgb;
