@@ -96,13 +96,28 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
 }
 
 void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
-  model_.clear();
   const int levels = static_cast<int>(fused.levels.size());
   // The model is raycast at pyramid level `model_level` (the fused frame's
   // depth at that level as the hint); finer tracking levels associate into
   // that same view, coarser ones into subsampled copies.
   const int model_level = std::clamp(params_.tracking.model_level, 0, static_cast<int>(fused.levels.size()) - 1);
-  const cv::Mat& hint = model_level == 0 ? fused.depth_m : fused.levels[model_level].depth;
+  cv::Mat hint = model_level == 0 ? fused.depth_m : fused.levels[model_level].depth;
+  // Where the frame has no depth, the previous model view (one frame of
+  // motion away) predicts the surface: those rays then bracket it directly
+  // instead of marching from the tile bound (a quarter of the rays on the
+  // TUM slice).
+  if (static_cast<int>(model_.size()) > model_level && model_[model_level].depth.size() == hint.size()) {
+    hint = hint.clone();
+    const cv::Mat& previous = model_[model_level].depth;
+    for (int v = 0; v < hint.rows; ++v) {
+      float* h = hint.ptr<float>(v);
+      const float* p = previous.ptr<float>(v);
+      for (int u = 0; u < hint.cols; ++u) {
+        if (!(h[u] > 0.0f)) h[u] = p[u];
+      }
+    }
+  }
+  model_.clear();
   model_.push_back(
       alg::raycast(map_, camera_.level(model_level), T_last_.cast<float>(), params_.raycast, false, parallel_, hint));
   for (int l = 1; l <= model_level && l < levels; ++l) model_.push_back(model_.back());
