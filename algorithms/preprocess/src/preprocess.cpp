@@ -118,6 +118,25 @@ cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat
   return conf;
 }
 
+// (I, dI/du, dI/dv) interleaved: the 3x3 Sobel operator scaled by 1/8 (units
+// of intensity per pixel), 0 on the one-pixel border.
+cv::Mat intensityWithGradient(const cv::Mat& intensity) {
+  cv::Mat out(intensity.size(), CV_32FC3, cv::Scalar(0, 0, 0));
+  for (int v = 0; v < intensity.rows; ++v) {
+    const float* r1 = intensity.ptr<float>(v);
+    auto* o = out.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < intensity.cols; ++u) o[u][0] = r1[u];
+    if (v == 0 || v + 1 == intensity.rows) continue;
+    const float* r0 = intensity.ptr<float>(v - 1);
+    const float* r2 = intensity.ptr<float>(v + 1);
+    for (int u = 1; u + 1 < intensity.cols; ++u) {
+      o[u][1] = 0.125f * ((r0[u + 1] - r0[u - 1]) + 2.0f * (r1[u + 1] - r1[u - 1]) + (r2[u + 1] - r2[u - 1]));
+      o[u][2] = 0.125f * ((r2[u - 1] - r0[u - 1]) + 2.0f * (r2[u] - r0[u]) + (r2[u + 1] - r0[u + 1]));
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 cv::Mat vertexMap(const cv::Mat& depth, const PinholeCamera& c) {
@@ -245,17 +264,14 @@ PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& c
       L.depth = depth;
       if (l == 0) {
         L.intensity = intensity;
-        cv::Sobel(intensity, L.grad_x, CV_32F, 1, 0, 3, 1.0 / 8.0);
-        cv::Sobel(intensity, L.grad_y, CV_32F, 0, 1, 3, 1.0 / 8.0);
+        L.intensity_grad = intensityWithGradient(intensity);
       }
       out.levels.push_back(std::move(L));
       continue;
     }
     if (l == finest) depth = bilateralDepth(depth, params);
     L.intensity = intensity;
-    // Central differences (half the Sobel scale keeps units of intensity per pixel).
-    cv::Sobel(intensity, L.grad_x, CV_32F, 1, 0, 3, 1.0 / 8.0);
-    cv::Sobel(intensity, L.grad_y, CV_32F, 0, 1, 3, 1.0 / 8.0);
+    L.intensity_grad = intensityWithGradient(intensity);
     L.depth = depth;
     L.vertex = vertexMap(depth, L.camera);
     L.normal = computeNormals(L.vertex, params);

@@ -111,12 +111,16 @@ void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Is
   }
 }
 
-inline float bilinear(const cv::Mat& img, float u, float v) {
+// Bilinear (I, dI/du, dI/dv) from an interleaved CV_32FC3 image; u, v >= 0
+// and at least one pixel inside the right and bottom borders.
+inline Eigen::Vector3f bilinear3(const cv::Mat& img, float u, float v) {
   const int u0 = static_cast<int>(u), v0 = static_cast<int>(v);
   const float a = u - static_cast<float>(u0), b = v - static_cast<float>(v0);
-  const float* r0 = img.ptr<float>(v0) + u0;
-  const float* r1 = img.ptr<float>(v0 + 1) + u0;
-  return (1 - b) * ((1 - a) * r0[0] + a * r0[1]) + b * ((1 - a) * r1[0] + a * r1[1]);
+  const float* r0 = img.ptr<float>(v0) + 3 * u0;
+  const float* r1 = img.ptr<float>(v0 + 1) + 3 * u0;
+  const float w00 = (1 - a) * (1 - b), w01 = a * (1 - b), w10 = (1 - a) * b, w11 = a * b;
+  return {w00 * r0[0] + w01 * r0[3] + w10 * r1[0] + w11 * r1[3], w00 * r0[1] + w01 * r0[4] + w10 * r1[1] + w11 * r1[4],
+          w00 * r0[2] + w01 * r0[5] + w10 * r1[2] + w11 * r1[5]};
 }
 
 // Photometric residuals r = I_cur(pi(T^-1 T_ref p_ref)) - I_ref(p_ref), added
@@ -155,9 +159,10 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const c
       // Occlusion: the current depth there must agree with the warped point.
       const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
       if (!(zc > 0.0f) || std::abs(zc - pc.z()) > 0.03f + 0.02f * pc.z()) continue;
-      const float gx = bilinear(cur.grad_x, uu, vv), gy = bilinear(cur.grad_y, uu, vv);
+      const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
+      const float gx = ig.y(), gy = ig.z();
       if (gx * gx + gy * gy < gmin2) continue;
-      const float r = bilinear(cur.intensity, uu, vv) - irow[u];
+      const float r = ig.x() - irow[u];
       // d r / d p_cur = g * d pi / d p.
       const Eigen::Vector3f g(gx * fx * inv_z, gy * fy * inv_z,
                               -(gx * fx * pc.x() + gy * fy * pc.y()) * inv_z * inv_z);

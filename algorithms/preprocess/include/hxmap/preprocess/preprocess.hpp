@@ -24,7 +24,9 @@ struct FrameLevel {
   cv::Mat normal;      ///< CV_32FC3 unit normals facing the camera, or 0
   cv::Mat confidence;  ///< CV_32F in [0, 1]
   cv::Mat intensity;   ///< CV_32F in [0, 1]
-  cv::Mat grad_x, grad_y;  ///< CV_32F intensity gradients per pixel (central differences)
+  /// CV_32FC3: intensity and its gradient per pixel (3x3 Sobel / 8),
+  /// interleaved so that a bilinear lookup of all three reads 4 places.
+  cv::Mat intensity_grad;
 };
 
 struct PreprocessedFrame {
