@@ -163,10 +163,10 @@ namespace {
 // weight then capped. Color and update statistics only from observations
 // inside the band (tsdf < mu), not from free-space clamps.
 inline float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max_w) {
-  const float new_w = blk.weight[i] + w;
+  const float new_w = blk.geo[i].weight + w;
   const float a = w / std::max(new_w, 1e-20f);  // 0 where w = 0
-  blk.sdf_m[i] += a * (tsdf - blk.sdf_m[i]);
-  blk.weight[i] = std::min(new_w, max_w);
+  blk.geo[i].sdf_m += a * (tsdf - blk.geo[i].sdf_m);
+  blk.geo[i].weight = std::min(new_w, max_w);
   return a;
 }
 

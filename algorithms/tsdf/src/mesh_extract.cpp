@@ -194,9 +194,9 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
           bool ok = true, neg = false, pos = false;
           for (int c = 0; c < 8 && ok; ++c) {
             corner[c] = at(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1), ci[c]);
-            ok = corner[c] != nullptr && corner[c]->weight[ci[c]] >= min_w;
+            ok = corner[c] != nullptr && corner[c]->geo[ci[c]].weight >= min_w;
             if (ok) {
-              s[c] = corner[c]->sdf_m[ci[c]];
+              s[c] = corner[c]->geo[ci[c]].sdf_m;
               neg |= s[c] < 0;
               pos |= s[c] >= 0;
             }

@@ -122,6 +122,7 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
         const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
         const float zh = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
+        if (zh < 0.0f) continue;  // predicted empty
         float hit = -1;
         if (zh > 0.0f) {
           // DESIGN: the hint is the depth just fused at (nearly) this pose,
@@ -162,12 +163,12 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
             prev_t = -1;
             continue;
           }
-          if (blk->weight[vi] <= min_w) {
+          if (blk->geo[vi].weight <= min_w) {
             t += vs;
             prev_t = -1;
             continue;
           }
-          const float sdf = blk->sdf_m[vi];
+          const float sdf = blk->geo[vi].sdf_m;
           if (from_hint) {
             from_hint = false;
             if (sdf < 0) {  // started behind a surface

@@ -47,14 +47,20 @@ bool TsdfMap::voxel(const Eigen::Vector3i& g, Voxel& out) const {
   int i = 0;
   const VoxelBlock* blk = blockOfVoxel(g, i);
   if (blk == nullptr) return false;
-  out.sdf_m = blk->sdf_m[i];
-  out.weight = blk->weight[i];
+  out.sdf_m = blk->geo[i].sdf_m;
+  out.weight = blk->geo[i].weight;
   out.color = blk->color[i];
   out.stats = blk->stats[i];
   return true;
 }
 
 namespace {
+// floor() for floats well inside the int range, without a libm call.
+inline int fastFloor(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i));
+}
+
 // The 8 voxels around p (block and index of each) and the trilinear
 // fractions; false when one is missing or has too little weight.
 bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p, float min_weight,
@@ -71,7 +77,7 @@ bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p,
     for (int c = 0; c < 8; ++c) {
       blocks[c] = blk;
       index[c] = i0 + (c & 1) + ((c >> 1) & 1) * kBlockSide + ((c >> 2) & 1) * kBlockSide * kBlockSide;
-      const float w = blk->weight[index[c]];
+      const float w = blk->geo[index[c]].weight;
       if (w < min_weight || w <= 0) return false;
     }
     return true;
@@ -79,7 +85,7 @@ bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p,
   for (int c = 0; c < 8; ++c) {
     blocks[c] = cache.blockOfVoxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1), index[c]);
     if (blocks[c] == nullptr) return false;
-    const float w = blocks[c]->weight[index[c]];
+    const float w = blocks[c]->geo[index[c]].weight;
     if (w < min_weight || w <= 0) return false;
   }
   return true;
@@ -91,12 +97,36 @@ inline float cornerWeight(int c, const Eigen::Vector3f& f) {
 }  // namespace
 
 bool BlockCache::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) {
+  // Fast path (343 of 512 positions): all 8 corners in one block, read as
+  // four x-adjacent pairs and blended by successive lerps.
+  const float qx = p.x() * map_->invVoxelSize() - 0.5f, qy = p.y() * map_->invVoxelSize() - 0.5f,
+              qz = p.z() * map_->invVoxelSize() - 0.5f;
+  const int bx = fastFloor(qx), by = fastFloor(qy), bz = fastFloor(qz);
+  if ((bx & 7) < 7 && (by & 7) < 7 && (bz & 7) < 7) {
+    const VoxelBlock* blk = get(BlockKey(bx >> 3, by >> 3, bz >> 3));
+    if (blk == nullptr) return false;
+    const int i0 = VoxelBlock::index(bx & 7, by & 7, bz & 7);
+    constexpr int dy = kBlockSide, dz = kBlockSide * kBlockSide;
+    const VoxelGeometry* g = blk->geo + i0;
+    const float w_min =
+        std::min(std::min(std::min(g[0].weight, g[1].weight), std::min(g[dy].weight, g[dy + 1].weight)),
+                 std::min(std::min(g[dz].weight, g[dz + 1].weight), std::min(g[dz + dy].weight, g[dz + dy + 1].weight)));
+    if (!(w_min > 0.0f) || w_min < min_weight) return false;
+    const float s[] = {g[0].sdf_m, g[1].sdf_m, g[dy].sdf_m, g[dy + 1].sdf_m};
+    const float t[] = {g[dz].sdf_m, g[dz + 1].sdf_m, g[dz + dy].sdf_m, g[dz + dy + 1].sdf_m};
+    const float fx = qx - static_cast<float>(bx), fy = qy - static_cast<float>(by), fz = qz - static_cast<float>(bz);
+    const float s00 = s[0] + fx * (s[1] - s[0]), s10 = s[2] + fx * (s[3] - s[2]);
+    const float s01 = t[0] + fx * (t[1] - t[0]), s11 = t[2] + fx * (t[3] - t[2]);
+    const float s0 = s00 + fy * (s10 - s00), s1 = s01 + fy * (s11 - s01);
+    sdf = s0 + fz * (s1 - s0);
+    return true;
+  }
   const VoxelBlock* blocks[8];
   int index[8];
   Eigen::Vector3f f;
   if (!gatherCorners(*this, map_->invVoxelSize(), p, min_weight, blocks, index, f)) return false;
   float s = 0;
-  for (int c = 0; c < 8; ++c) s += cornerWeight(c, f) * blocks[c]->sdf_m[index[c]];
+  for (int c = 0; c < 8; ++c) s += cornerWeight(c, f) * blocks[c]->geo[index[c]].sdf_m;
   sdf = s;
   return true;
 }

@@ -44,15 +44,15 @@ TEST(TsdfIntegration, OptimizedKernelAgreesWithReference) {
     ASSERT_EQ(fast.key(b), ref.key(b));
     for (int i = 0; i < kBlockVoxels; ++i) {
       const VoxelBlock &x = fast.block(b), &y = ref.block(b);
-      if (x.weight[i] == 0 && y.weight[i] == 0) continue;
+      if (x.geo[i].weight == 0 && y.geo[i].weight == 0) continue;
       ++voxels;
       // A voxel projecting exactly between two pixels may round to either
       // in float vs double: allow a handful of such voxels.
-      if (std::abs(x.weight[i] - y.weight[i]) > 1e-5f || x.stats[i].updates != y.stats[i].updates) {
+      if (std::abs(x.geo[i].weight - y.geo[i].weight) > 1e-5f || x.stats[i].updates != y.stats[i].updates) {
         ++mismatched;
         continue;
       }
-      worst_sdf = std::max(worst_sdf, static_cast<double>(std::abs(x.sdf_m[i] - y.sdf_m[i])));
+      worst_sdf = std::max(worst_sdf, static_cast<double>(std::abs(x.geo[i].sdf_m - y.geo[i].sdf_m)));
     }
   }
   EXPECT_GT(voxels, 100000u);

@@ -23,9 +23,11 @@ struct ModelView {
   int valid_pixels = 0;
 };
 
-/// `depth_hint` (optional, CV_32F z in meters, camera-sized, 0 = none) predicts
-/// the surface per pixel, e.g. the frame just fused at this pose: such rays
-/// start a truncation distance before it instead of at the per-tile bound.
+/// `depth_hint` (optional, CV_32F z in meters, camera-sized) predicts the
+/// surface per pixel, e.g. the frame just fused at this pose: such rays
+/// bracket it directly, or march from a truncation distance before it
+/// instead of from the per-tile bound. 0 = no prediction (march); negative =
+/// predicted empty, the ray is not cast (its pixel stays invalid).
 ModelView raycast(const TsdfMap& map, const PinholeCamera& camera, const Eigen::Isometry3f& T_world_cam,
                   const RaycastParams& params, bool with_color = false, const ParallelFor& parallel = serialFor,
                   const cv::Mat& depth_hint = cv::Mat());

@@ -35,14 +35,21 @@ struct VoxelStats {
   float variance() const { return updates > 1 ? m2 / static_cast<float>(updates - 1) : 0.0f; }
 };
 
-/// 8^3 voxels stored as a structure of arrays. DESIGN: the hot loops
-/// (raycast marching, the geometry pass of fusion, meshing) read only sdf
-/// and weight, so those sit together in 4 KiB per block instead of being
-/// interleaved with color and statistics (24 bytes per voxel as an array of
-/// structs): one cache line holds a row of 8 voxels and fusion vectorizes.
+/// Fused signed distance and weight (summed confidence, capped at
+/// max_weight) of one voxel.
+struct VoxelGeometry {
+  float sdf_m = 0.0f;
+  float weight = 0.0f;
+};
+
+/// 8^3 voxels stored as three arrays. DESIGN: the hot loops (raycast
+/// marching and trilinear samples, the geometry pass of fusion, meshing)
+/// read only sdf and weight, so those sit together in 4 KiB per block
+/// instead of being interleaved with color and statistics (24 bytes per
+/// voxel as an array of structs): one cache line holds a row of 8 voxels,
+/// sdf next to its weight, so a trilinear sample touches 4 lines, not 8.
 struct VoxelBlock {
-  float sdf_m[kBlockVoxels] = {};
-  float weight[kBlockVoxels] = {};  ///< summed confidence, capped at max_weight
+  VoxelGeometry geo[kBlockVoxels] = {};
   VoxelColor color[kBlockVoxels] = {};
   VoxelStats stats[kBlockVoxels] = {};
   static int index(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
