@@ -1,11 +1,13 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "hxmap/runtime/latest_slot.hpp"
 #include "hxmap/runtime/spsc_ring.hpp"
 
 namespace hxmap::rt {
@@ -147,6 +149,53 @@ TEST(SpscRing, TwoThreadsPopLatestAccountsForEveryValue) {
   producer.join();
   EXPECT_TRUE(increasing);
   EXPECT_EQ(kept + skipped_total, kCount);
+}
+
+TEST(LatestSlot, KeepsTheNewestAndReportsDrops) {
+  LatestSlot<int> slot;
+  int out = -1;
+  EXPECT_FALSE(slot.take(out));
+  EXPECT_FALSE(slot.publish(1));
+  EXPECT_TRUE(slot.publish(2)) << "1 was never taken: dropped";
+  EXPECT_TRUE(slot.publish(3));
+  ASSERT_TRUE(slot.take(out));
+  EXPECT_EQ(out, 3);
+  EXPECT_FALSE(slot.take(out)) << "nothing new";
+  EXPECT_FALSE(slot.publish(4));
+  ASSERT_TRUE(slot.take(out));
+  EXPECT_EQ(out, 4);
+}
+
+// Two threads: values taken only increase, and taken + dropped = published.
+TEST(LatestSlot, TwoThreadsAccountForEveryValue) {
+  constexpr int kCount = 100000;
+  LatestSlot<std::unique_ptr<int>> slot;
+  int dropped = 0;
+  std::atomic<bool> done{false};
+  std::thread producer([&] {
+    for (int i = 1; i <= kCount; ++i) dropped += slot.publish(std::make_unique<int>(i)) ? 1 : 0;
+    done = true;
+  });
+  int taken = 0, last = 0;
+  bool increasing = true;
+  std::unique_ptr<int> v;
+  while (true) {
+    if (slot.take(v)) {
+      ASSERT_TRUE(v);
+      increasing &= *v > last;
+      last = *v;
+      ++taken;
+    } else if (done.load()) {
+      if (!slot.take(v)) break;
+      increasing &= *v > last;
+      last = *v;
+      ++taken;
+    }
+  }
+  producer.join();
+  EXPECT_TRUE(increasing);
+  EXPECT_EQ(last, kCount) << "the last value published is taken";
+  EXPECT_EQ(taken + dropped, kCount);
 }
 
 }  // namespace

@@ -1,0 +1,195 @@
+#include "hxmap/runtime/scheduler.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <fmt/format.h>
+
+namespace hxmap::rt {
+
+void CostModel::add(double ms) {
+  ewma_ = count_ == 0 ? ms : ewma_ + alpha_ * (ms - ewma_);
+  ++count_;
+  if (recent_.size() < window_) {
+    recent_.push_back(ms);
+  } else {
+    recent_[next_] = ms;
+    next_ = (next_ + 1) % window_;
+  }
+}
+
+double CostModel::recentMax() const {
+  double m = 0.0;
+  for (double x : recent_) m = std::max(m, x);
+  return m;
+}
+
+double CostModel::percentile(double q) const {
+  if (recent_.empty()) return 0.0;
+  std::vector<double> v = recent_;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(std::lround(std::clamp(q, 0.0, 1.0) * (v.size() - 1))));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+const char* frontendStageName(FrontendStage s) {
+  switch (s) {
+    case FrontendStage::kPreprocess: return "preprocess";
+    case FrontendStage::kTrack: return "track";
+    case FrontendStage::kIntegrate: return "integrate";
+    case FrontendStage::kRaycast: return "raycast";
+    case FrontendStage::kTotal: return "frontend";
+    default: return "?";
+  }
+}
+
+namespace {
+int64_t msToNs(double ms) { return static_cast<int64_t>(std::llround(ms * 1e6)); }
+double nsToMs(int64_t ns) { return static_cast<double>(ns) * 1e-6; }
+}  // namespace
+
+Scheduler::Scheduler(const SchedulerParams& params)
+    : params_(params),
+      period_ns_(static_cast<int64_t>(std::llround(1e9 / std::max(0.1, params.target_fps)))),
+      margin_ns_(msToNs(params.margin_ms)),
+      feedback_effort_(params.max_feedback_effort) {
+  const size_t window = static_cast<size_t>(std::max(1, params.recent_frames));
+  for (auto& s : stages_) s = CostModel(params.ewma_alpha, window);
+}
+
+void Scheduler::frameArrived(int64_t arrival_ns) {
+  frames_in_.fetch_add(1, std::memory_order_relaxed);
+  // The next frame is expected one period later: background work must leave
+  // the CPUs by then.
+  next_due_ns_.store(arrival_ns + period_ns_, std::memory_order_release);
+}
+
+void Scheduler::framesDropped(size_t n) { frames_dropped_.fetch_add(n, std::memory_order_relaxed); }
+
+void Scheduler::frameStarted(int64_t now_ns, int64_t arrival_ns) {
+  current_arrival_ns_ = arrival_ns;
+  const double predicted = stages_[static_cast<size_t>(FrontendStage::kTotal)].predict();
+  frame_end_pred_ns_.store(now_ns + msToNs(predicted), std::memory_order_release);
+}
+
+bool Scheduler::frameFinished(int64_t now_ns, const std::array<double, 4>& stage_ms, double total_ms) {
+  double sum = 0;
+  for (size_t s = 0; s < stage_ms.size(); ++s) {
+    stages_[s].add(stage_ms[s]);
+    sum += stage_ms[s];
+  }
+  stages_[static_cast<size_t>(FrontendStage::kTotal)].add(total_ms > 0 ? total_ms : sum);
+  frame_end_pred_ns_.store(now_ns, std::memory_order_release);
+  frames_processed_.fetch_add(1, std::memory_order_relaxed);
+  const bool met = now_ns <= current_arrival_ns_ + period_ns_;
+  if (!met) misses_.fetch_add(1, std::memory_order_relaxed);
+
+  // Pose-feedback effort follows the slack frames leave: down a level when
+  // the last frame's slack cannot hold the current level, up when it holds
+  // the next one with room to spare.
+  double feedback_full_ms = 0;
+  {
+    std::lock_guard<std::mutex> lock(job_mutex_);
+    for (const auto& k : job_costs_) {
+      if (k.kind == "feedback" && !k.model.empty()) feedback_full_ms = k.model.predict();
+    }
+  }
+  const double slack = nsToMs(current_arrival_ns_ + period_ns_ - margin_ns_ - now_ns);
+  const int max_e = std::max(0, params_.max_feedback_effort);
+  int e = feedback_effort_.load(std::memory_order_relaxed);
+  const double per_level = max_e > 0 ? feedback_full_ms / max_e : 0.0;
+  if (e > 0 && slack < per_level * e) {
+    --e;
+  } else if (e < max_e && slack > 1.5 * per_level * (e + 1)) {
+    ++e;
+  }
+  feedback_effort_.store(e, std::memory_order_relaxed);
+  return met;
+}
+
+double Scheduler::slackMs(int64_t now_ns) const {
+  const int64_t busy_until = std::max(now_ns, frame_end_pred_ns_.load(std::memory_order_acquire));
+  return nsToMs(next_due_ns_.load(std::memory_order_acquire) - margin_ns_ - busy_until);
+}
+
+void Scheduler::jobSubmitted(JobTicket& job, int64_t now_ns) {
+  job.submitted_ns = now_ns;
+  job.last_admitted_ns = -1;
+  jobs_submitted_.fetch_add(1, std::memory_order_relaxed);
+}
+
+double Scheduler::predictSliceLocked(const JobTicket& job) const {
+  for (const auto& k : job_costs_) {
+    if (k.kind == job.kind && !k.model.empty()) return std::max(k.model.predict(), 0.0);
+  }
+  return job.slice_estimate_ms;
+}
+
+Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_ms) {
+  double predicted = 0;
+  {
+    std::lock_guard<std::mutex> lock(job_mutex_);
+    predicted = predictSliceLocked(job);
+  }
+  if (predicted_ms) *predicted_ms = predicted;
+  if (predicted <= slackMs(now_ns)) {
+    job.last_admitted_ns = now_ns;
+    slices_admitted_.fetch_add(1, std::memory_order_relaxed);
+    return Verdict::kRun;
+  }
+  const int64_t waiting_since = job.started() ? job.last_admitted_ns : job.submitted_ns;
+  if (now_ns - waiting_since > static_cast<int64_t>(params_.shed_after_periods) * period_ns_) {
+    (job.started() ? cancelled_ : shed_unstarted_).fetch_add(1, std::memory_order_relaxed);
+    return Verdict::kShed;
+  }
+  if (job.started()) paused_.fetch_add(1, std::memory_order_relaxed);
+  return Verdict::kWait;
+}
+
+void Scheduler::sliceFinished(const JobTicket& job, double ms) {
+  std::lock_guard<std::mutex> lock(job_mutex_);
+  for (auto& k : job_costs_) {
+    if (k.kind == job.kind) {
+      k.model.add(ms);
+      return;
+    }
+  }
+  job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames)))});
+  job_costs_.back().model.add(ms);
+}
+
+void Scheduler::jobFinished(const JobTicket&) { jobs_completed_.fetch_add(1, std::memory_order_relaxed); }
+
+SchedulerCounters Scheduler::counters() const {
+  SchedulerCounters c;
+  c.frames_in = frames_in_.load();
+  c.frames_processed = frames_processed_.load();
+  c.frames_dropped = frames_dropped_.load();
+  c.deadline_misses = misses_.load();
+  c.jobs_submitted = jobs_submitted_.load();
+  c.slices_admitted = slices_admitted_.load();
+  c.jobs_completed = jobs_completed_.load();
+  c.jobs_shed_unstarted = shed_unstarted_.load();
+  c.jobs_cancelled = cancelled_.load();
+  c.slices_paused = paused_.load();
+  return c;
+}
+
+std::string Scheduler::report() const {
+  const SchedulerCounters c = counters();
+  std::string out = fmt::format(
+      "frames: in {}, processed {}, dropped {}, deadline misses {} (deadline {:.1f} ms)\n"
+      "jobs: submitted {}, completed {}, shed before start {}, cancelled {}; slices admitted {}, paused {}\n"
+      "feedback effort now {} of {}\n"
+      "stage costs, ms (last {} frames)   p50      p99\n",
+      c.frames_in, c.frames_processed, c.frames_dropped, c.deadline_misses, nsToMs(period_ns_), c.jobs_submitted,
+      c.jobs_completed, c.jobs_shed_unstarted, c.jobs_cancelled, c.slices_admitted, c.slices_paused, feedbackEffort(),
+      params_.max_feedback_effort, params_.recent_frames);
+  for (size_t s = 0; s < stages_.size(); ++s) {
+    out += fmt::format("  {:<30} {:8.2f} {:8.2f}\n", frontendStageName(static_cast<FrontendStage>(s)),
+                       stages_[s].percentile(0.5), stages_[s].percentile(0.99));
+  }
+  return out;
+}
+
+}  // namespace hxmap::rt
