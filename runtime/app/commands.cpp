@@ -10,6 +10,7 @@
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/parsers.hpp"
 #include "hxmap/dataset/ply.hpp"
+#include "hxmap/runtime/trace.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
@@ -149,7 +150,13 @@ int runCommand(const RunOptions& o) {
   std::string first_error;
   Progress progress("mapping", frames.size());
   const auto t_start = std::chrono::steady_clock::now();
+  TraceRecorder trace;
+  trace.nameThread(1, "frontend");
+  auto since_start = [&](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
+  };
   for (size_t k = 0; k < frames.size(); ++k) {
+    const auto t_load = std::chrono::steady_clock::now();
     auto frame = ds.load(frames[k]);
     if (!frame) {
       if (!dopt.skip_bad) {
@@ -161,7 +168,20 @@ int runCommand(const RunOptions& o) {
       spdlog::warn("skipped frame {}: {}", frames[k], frame.message());
       continue;
     }
+    const auto t_frame = std::chrono::steady_clock::now();
     const FrameResult r = frontend.process(*frame);
+    if (!o.trace.empty()) {
+      // Stages run back to back inside process(): laid out from its start.
+      const int64_t stamp = frame->stamp_ns, seq = static_cast<int64_t>(frames[k]);
+      int64_t t = since_start(t_frame);
+      trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, stamp});
+      for (int s = 0; s < kStageCount; ++s) {
+        if (r.stage_ms[s] <= 0) continue;
+        const auto d = static_cast<int64_t>(r.stage_ms[s] * 1e6);
+        trace.add({stageName(s), "frontend", t, d, 1, seq, stamp});
+        t += d;
+      }
+    }
     spdlog::debug("frame {}: tracked {} inliers {} rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]", frames[k], r.tracked,
                   r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),
                   r.T_world_cam.translation().z());
@@ -231,6 +251,14 @@ int runCommand(const RunOptions& o) {
   }
   summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
   if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
+  if (!o.trace.empty()) {
+    if (auto s = trace.write(o.trace); !s) {
+      spdlog::error("{}", s.message());
+      exit_code = 1;
+    } else {
+      summary += fmt::format("trace: {} ({} events; open in ui.perfetto.dev)\n", o.trace, trace.size());
+    }
+  }
   if (auto s = drv::writeTextFile((fs::path(o.out_dir) / "summary.txt").string(), summary); !s) {
     spdlog::error("{}", s.message());
     exit_code = 1;

@@ -13,6 +13,7 @@ struct RunOptions {
   int max_frames = -1;  ///< -1 = from config
   bool skip_bad = false;
   bool no_mesh_eval = false;
+  std::string trace;    ///< Chrome trace JSON of per-frame stage timings; empty = none
 };
 int runCommand(const RunOptions& options);
 

@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--config", run.config, "YAML configuration (default: built-in defaults)");
   run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
   run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames");
+  run_cmd->add_option("--trace", run.trace, "write per-frame stage timings as a Chrome/Perfetto trace (JSON)");
   run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");
   run_cmd->add_flag("--no-mesh-eval", run.no_mesh_eval, "do not score the mesh against gt_mesh.ply");
 

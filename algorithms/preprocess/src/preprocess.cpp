@@ -23,7 +23,7 @@ class ExpTable {
   float table_[kSize + 1];
 };
 
-cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p) {
+cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const ParallelFor& parallel) {
   const int r = p.bilateral_radius_px;
   if (r <= 0) return depth.clone();
   static const ExpTable exp_neg;
@@ -31,39 +31,41 @@ cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p) {
   std::vector<float> spatial((2 * r + 1) * (2 * r + 1));
   for (int dy = -r; dy <= r; ++dy) {
     for (int dx = -r; dx <= r; ++dx) {
-      spatial[(dy + r) * (2 * r + 1) + dx + r] =
-          std::exp(-static_cast<float>(dx * dx + dy * dy) / static_cast<float>(2 * p.bilateral_sigma_px * p.bilateral_sigma_px));
+      spatial[(dy + r) * (2 * r + 1) + dx + r] = std::exp(
+          -static_cast<float>(dx * dx + dy * dy) / static_cast<float>(2 * p.bilateral_sigma_px * p.bilateral_sigma_px));
     }
   }
   const float k = static_cast<float>(p.bilateral_sigma_depth_factor);
-  for (int v = 0; v < depth.rows; ++v) {
-    const float* row = depth.ptr<float>(v);
-    float* orow = out.ptr<float>(v);
-    const int v0 = std::max(0, v - r), v1 = std::min(depth.rows - 1, v + r);
-    for (int u = 0; u < depth.cols; ++u) {
-      const float z = row[u];
-      if (z <= 0) continue;
-      const float sr = k * depthSigma(z, p);
-      const float inv2 = 1.0f / (2 * sr * sr);
-      const int u0 = std::max(0, u - r), u1 = std::min(depth.cols - 1, u + r);
-      float sum = 0, wsum = 0;
-      for (int vv = v0; vv <= v1; ++vv) {
-        const float* nrow = depth.ptr<float>(vv);
-        const float* srow = &spatial[(vv - v + r) * (2 * r + 1) + r - u];
-        for (int uu = u0; uu <= u1; ++uu) {
-          const float zn = nrow[uu];
-          if (zn <= 0) continue;
-          const float dz = zn - z;
-          const float x = dz * dz * inv2;
-          if (x > ExpTable::kMax) continue;  // beyond 3 sigma: another surface
-          const float w = srow[uu] * exp_neg(x);
-          sum += w * zn;
-          wsum += w;
+  parallel(static_cast<size_t>(depth.rows), [&](size_t r0, size_t r1) {
+    for (int v = static_cast<int>(r0); v < static_cast<int>(r1); ++v) {
+      const float* row = depth.ptr<float>(v);
+      float* orow = out.ptr<float>(v);
+      const int v0 = std::max(0, v - r), v1 = std::min(depth.rows - 1, v + r);
+      for (int u = 0; u < depth.cols; ++u) {
+        const float z = row[u];
+        if (z <= 0) continue;
+        const float sr = k * depthSigma(z, p);
+        const float inv2 = 1.0f / (2 * sr * sr);
+        const int u0 = std::max(0, u - r), u1 = std::min(depth.cols - 1, u + r);
+        float sum = 0, wsum = 0;
+        for (int vv = v0; vv <= v1; ++vv) {
+          const float* nrow = depth.ptr<float>(vv);
+          const float* srow = &spatial[(vv - v + r) * (2 * r + 1) + r - u];
+          for (int uu = u0; uu <= u1; ++uu) {
+            const float zn = nrow[uu];
+            if (zn <= 0) continue;
+            const float dz = zn - z;
+            const float x = dz * dz * inv2;
+            if (x > ExpTable::kMax) continue;  // beyond 3 sigma: another surface
+            const float w = srow[uu] * exp_neg(x);
+            sum += w * zn;
+            wsum += w;
+          }
         }
+        orow[u] = sum / wsum;
       }
-      orow[u] = sum / wsum;
     }
-  }
+  });
   return out;
 }
 
@@ -120,20 +122,22 @@ cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat
 
 // (I, dI/du, dI/dv) interleaved: the 3x3 Sobel operator scaled by 1/8 (units
 // of intensity per pixel), 0 on the one-pixel border.
-cv::Mat intensityWithGradient(const cv::Mat& intensity) {
+cv::Mat intensityWithGradient(const cv::Mat& intensity, const ParallelFor& parallel) {
   cv::Mat out(intensity.size(), CV_32FC3, cv::Scalar(0, 0, 0));
-  for (int v = 0; v < intensity.rows; ++v) {
-    const float* r1 = intensity.ptr<float>(v);
-    auto* o = out.ptr<cv::Vec3f>(v);
-    for (int u = 0; u < intensity.cols; ++u) o[u][0] = r1[u];
-    if (v == 0 || v + 1 == intensity.rows) continue;
-    const float* r0 = intensity.ptr<float>(v - 1);
-    const float* r2 = intensity.ptr<float>(v + 1);
-    for (int u = 1; u + 1 < intensity.cols; ++u) {
-      o[u][1] = 0.125f * ((r0[u + 1] - r0[u - 1]) + 2.0f * (r1[u + 1] - r1[u - 1]) + (r2[u + 1] - r2[u - 1]));
-      o[u][2] = 0.125f * ((r2[u - 1] - r0[u - 1]) + 2.0f * (r2[u] - r0[u]) + (r2[u + 1] - r0[u + 1]));
+  parallel(static_cast<size_t>(intensity.rows), [&](size_t v0, size_t v1) {
+    for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
+      const float* r1 = intensity.ptr<float>(v);
+      auto* o = out.ptr<cv::Vec3f>(v);
+      for (int u = 0; u < intensity.cols; ++u) o[u][0] = r1[u];
+      if (v == 0 || v + 1 == intensity.rows) continue;
+      const float* r0 = intensity.ptr<float>(v - 1);
+      const float* r2 = intensity.ptr<float>(v + 1);
+      for (int u = 1; u + 1 < intensity.cols; ++u) {
+        o[u][1] = 0.125f * ((r0[u + 1] - r0[u - 1]) + 2.0f * (r1[u + 1] - r1[u - 1]) + (r2[u + 1] - r2[u - 1]));
+        o[u][2] = 0.125f * ((r2[u - 1] - r0[u - 1]) + 2.0f * (r2[u] - r0[u]) + (r2[u + 1] - r0[u + 1]));
+      }
     }
-  }
+  });
   return out;
 }
 
@@ -211,7 +215,8 @@ cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& p) {
   return out;
 }
 
-PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params) {
+PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params,
+                                  const ParallelFor& parallel) {
   PreprocessedFrame out;
   out.stamp_ns = frame.stamp_ns;
   out.seq = frame.seq;
@@ -264,14 +269,14 @@ PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& c
       L.depth = depth;
       if (l == 0) {
         L.intensity = intensity;
-        L.intensity_grad = intensityWithGradient(intensity);
+        L.intensity_grad = intensityWithGradient(intensity, parallel);
       }
       out.levels.push_back(std::move(L));
       continue;
     }
-    if (l == finest) depth = bilateralDepth(depth, params);
+    if (l == finest) depth = bilateralDepth(depth, params, parallel);
     L.intensity = intensity;
-    L.intensity_grad = intensityWithGradient(intensity);
+    L.intensity_grad = intensityWithGradient(intensity, parallel);
     L.depth = depth;
     L.vertex = vertexMap(depth, L.camera);
     L.normal = computeNormals(L.vertex, params);

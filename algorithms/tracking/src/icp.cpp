@@ -1,6 +1,7 @@
 #include "hxmap/tracking/icp.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <iterator>
 
@@ -41,6 +42,10 @@ class NormalEquations {
     return H;
   }
   Vector6d b() const { return Vector6d(b_); }
+  void merge(const NormalEquations& o) {  // flushed sums only
+    for (int k = 0; k < 21; ++k) H_[k] += o.H_[k];
+    for (int i = 0; i < 6; ++i) b_[i] += o.b_[i];
+  }
 
  private:
   float h_[21] = {}, g_[6] = {};
@@ -51,7 +56,30 @@ struct Accumulation {
   NormalEquations eq;
   double sq_sum = 0;
   int inliers = 0;
+  void merge(const Accumulation& o) {
+    eq.merge(o.eq);
+    sq_sum += o.sq_sum;
+    inliers += o.inliers;
+  }
 };
+
+// Rows of an image of `rows` rows split into kChunks fixed bands (multiples
+// of `stride`), accumulated in parallel and summed in band order: the
+// result does not depend on the number of threads.
+constexpr int kChunks = 8;
+
+template <typename Body>
+void accumulateBands(int rows, int stride, const ParallelFor& parallel, Accumulation& acc, const Body& body) {
+  const int steps = (rows + stride - 1) / stride;
+  std::array<Accumulation, kChunks> part;
+  parallel(kChunks, [&](size_t c0, size_t c1) {
+    for (size_t c = c0; c < c1; ++c) {
+      const int s0 = static_cast<int>(c) * steps / kChunks, s1 = (static_cast<int>(c) + 1) * steps / kChunks;
+      body(s0 * stride, std::min(rows, s1 * stride), part[c]);
+    }
+  });
+  for (const auto& p : part) acc.merge(p);
+}
 
 // Nearest pixel of x in [-0.5, size - 0.5), or -1: floor(x + 0.5) by
 // truncation, no libm call.
@@ -61,7 +89,7 @@ inline int nearestPixel(float x, int size) {
 }
 
 void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Isometry3f& T,
-                const TrackingParams& params, int stride, Accumulation& acc) {
+                const TrackingParams& params, int stride, int v_begin, int v_end, Accumulation& acc) {
   const Eigen::Isometry3f T_ref_world = model.T_world_cam.inverse();
   const Eigen::Isometry3f T_ref_cam = T_ref_world * T;
   const float max_d = static_cast<float>(params.max_correspondence_distance_m);
@@ -72,7 +100,7 @@ void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Is
   const float cx = static_cast<float>(mc.cx), cy = static_cast<float>(mc.cy);
   const int mw = mc.width, mh = mc.height;
   const Eigen::Matrix3f R = T.linear();
-  for (int v = 0; v < level.vertex.rows; v += stride) {
+  for (int v = v_begin; v < v_end; v += stride) {
     const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
     const auto* nrow = level.normal.ptr<cv::Vec3f>(v);
     const float* crow = level.confidence.ptr<float>(v);
@@ -128,7 +156,7 @@ inline Eigen::Vector3f bilinear3(const cv::Mat& img, float u, float v) {
 // `ref_conf`, which may be `conf_shift` levels coarser.
 void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const cv::Mat& ref_conf, int conf_shift,
                            const Eigen::Isometry3f& T_world_ref, const Eigen::Isometry3f& T,
-                           const TrackingParams& params, int stride, Accumulation& acc) {
+                           const TrackingParams& params, int stride, int v_begin, int v_end, Accumulation& acc) {
   const Eigen::Isometry3f T_cur_world = T.inverse();
   const Eigen::Matrix3f R = T.linear();
   const Eigen::Isometry3f T_cur_ref = T_cur_world * T_world_ref;
@@ -141,7 +169,7 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const c
   const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
   const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
   const int conf_cols = ref_conf.cols;
-  for (int v = 0; v < ref.depth.rows; v += stride) {
+  for (int v = v_begin; v < v_end; v += stride) {
     const float* drow = ref.depth.ptr<float>(v);
     const float* irow = ref.intensity.ptr<float>(v);
     const int cv_row = std::min(v >> conf_shift, ref_conf.rows - 1);
@@ -183,7 +211,7 @@ void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const c
 
 IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<ModelView>& model,
                             const Eigen::Isometry3d& T_init, const TrackingParams& params,
-                            const PhotometricReference& reference) {
+                            const PhotometricReference& reference, const ParallelFor& parallel) {
   IcpResult result;
   result.T_world_cam = T_init;
   if (model.empty() || frame.levels.empty()) {
@@ -205,7 +233,10 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     const int photometric_stride = l == finest ? std::max(1, params.photometric_stride_finest) : 1;
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
-      accumulate(frame.levels[l], model[l], T.cast<float>(), params, stride, acc);
+      const Eigen::Isometry3f Tf = T.cast<float>();
+      accumulateBands(frame.levels[l].vertex.rows, stride, parallel, acc, [&](int v0, int v1, Accumulation& a) {
+        accumulate(frame.levels[l], model[l], Tf, params, stride, v0, v1, a);
+      });
       ++result.iterations;
       if (acc.inliers < 6) break;
       if (use_photometric && static_cast<size_t>(l) < reference.frame->levels.size()) {
@@ -213,9 +244,13 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
         // have it (finer texture than the geometry's level).
         const int pl = l == finest && !frame.levels[0].intensity.empty() &&
                                !reference.frame->levels[0].intensity.empty() ? 0 : l;
-        accumulatePhotometric(frame.levels[pl], reference.frame->levels[pl], reference.frame->levels[l].confidence,
-                              l - pl, reference.T_world_cam.cast<float>(), T.cast<float>(), params,
-                              photometric_stride, acc);
+        const FrameLevel& cur = frame.levels[pl];
+        const FrameLevel& ref = reference.frame->levels[pl];
+        const Eigen::Isometry3f T_world_ref = reference.T_world_cam.cast<float>();
+        accumulateBands(ref.depth.rows, photometric_stride, parallel, acc, [&](int v0, int v1, Accumulation& a) {
+          accumulatePhotometric(cur, ref, reference.frame->levels[l].confidence, l - pl, T_world_ref, Tf, params,
+                                photometric_stride, v0, v1, a);
+        });
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());
@@ -230,7 +265,10 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   // inlier counts are scaled to every pixel of that level).
   Accumulation last;
   const int final_stride = std::max(1, params.icp_stride_finest);
-  accumulate(frame.levels[finest], model[finest], T.cast<float>(), params, final_stride, last);
+  const Eigen::Isometry3f Tf = T.cast<float>();
+  accumulateBands(frame.levels[finest].vertex.rows, final_stride, parallel, last, [&](int v0, int v1, Accumulation& a) {
+    accumulate(frame.levels[finest], model[finest], Tf, params, final_stride, v0, v1, a);
+  });
   last.inliers *= final_stride * final_stride;
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum * final_stride * final_stride / last.inliers) : 0.0;

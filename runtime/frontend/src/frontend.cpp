@@ -33,7 +33,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   alg::PreprocessedFrame pre;
   {
     StageTimer t(r.stage_ms[kPreprocess]);
-    pre = alg::preprocessFrame(frame, camera_, params_.preprocess);
+    pre = alg::preprocessFrame(frame, camera_, params_.preprocess, parallel_);
   }
   const int min_valid = std::max(params_.tracking.min_inliers, camera_.width * camera_.height / 100);
 
@@ -47,7 +47,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
     StageTimer t(r.stage_ms[kTrack]);
     const alg::IcpResult icp = alg::trackPointToPlane(
         pre, model_, params_.tracking.constant_velocity ? T_last_ * velocity_ : T_last_, params_.tracking,
-        alg::PhotometricReference{&last_frame_, T_last_});
+        alg::PhotometricReference{&last_frame_, T_last_}, parallel_);
     r.tracked = icp.ok;
     r.failure = icp.failure;
     r.inliers = icp.inliers;

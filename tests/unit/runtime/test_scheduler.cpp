@@ -1,7 +1,12 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <string>
+#include <vector>
+
 #include "hxmap/runtime/replay.hpp"
 #include "hxmap/runtime/scheduler.hpp"
+#include "hxmap/runtime/trace.hpp"
 
 namespace hxmap::rt {
 namespace {
@@ -104,6 +109,79 @@ TEST(Scheduler, FeedbackEffortDropsUnderTightSlackAndRecovers) {
     s.frameFinished(t + 10'000'000, {2, 4, 1, 3});
   }
   EXPECT_EQ(s.feedbackEffort(), 3);
+}
+
+// A trace recorded from `hxmap run --trace` on the shared TUM fr1/xyz slice
+// (both cores; frontend median 23 ms), replayed at its recorded 30 FPS.
+std::vector<ReplayFrame> recordedTumFrames() {
+  auto events = readTrace(std::string(HXMAP_SOURCE_DIR) + "/tests/replay/tum_fr1_xyz_first40.json");
+  EXPECT_TRUE(events) << events.message();
+  if (!events) return {};
+  auto frames = replayFramesFromTrace(*events);
+  EXPECT_TRUE(frames) << frames.message();
+  return frames ? *frames : std::vector<ReplayFrame>{};
+}
+
+TEST(SchedulerReplay, RecordedTumTraceWithABurningJobHasNoMissAndShedsIt) {
+  const auto frames = recordedTumFrames();
+  ASSERT_EQ(frames.size(), 35u);
+  double worst = 0;
+  for (const auto& f : frames) worst = std::max(worst, f.totalMs());
+  ASSERT_LT(worst, 33.0) << "the recorded frontend fits the 30 FPS period by itself";
+  SchedulerParams p;
+  p.target_fps = 30;
+  // A CPU-burning refinement job: 30 ms slices, about three times the slack.
+  std::vector<ReplayJob> jobs{{"refine", 0, 30.0, 30.0, 100}};
+  const ReplayResult r = replay(frames, jobs, p);
+  EXPECT_EQ(r.counters.deadline_misses, 0u) << r.report;
+  EXPECT_EQ(r.counters.frames_processed, 35u);
+  EXPECT_EQ(r.counters.slices_admitted, 0u);
+  EXPECT_EQ(r.counters.jobs_shed_unstarted, 1u) << r.report;
+}
+
+TEST(SchedulerReplay, RecordedTumTraceWithLightJobsCompletesThem) {
+  const auto frames = recordedTumFrames();
+  SchedulerParams p;
+  p.target_fps = 30;
+  std::vector<ReplayJob> jobs;
+  for (int i = 0; i < 8; ++i) jobs.push_back({"refine", i * 100'000'000LL, 2.0, 2.0, 3});
+  const ReplayResult r = replay(frames, jobs, p);
+  EXPECT_EQ(r.counters.deadline_misses, 0u) << r.report;
+  EXPECT_EQ(r.counters.jobs_completed, 8u) << r.report;
+}
+
+TEST(Trace, WritesAndReadsBackChromeJson) {
+  TraceRecorder rec;
+  rec.nameThread(1, "frontend");
+  for (int f = 0; f < 3; ++f) {
+    const int64_t t0 = f * 40'000'000LL;
+    rec.add({"preprocess", "frontend", t0, 5'000'000, 1, f, 1000 + f * 33'000'000LL});
+    rec.add({"track", "frontend", t0 + 5'000'000, 8'000'500, 1, f, 1000 + f * 33'000'000LL});
+  }
+  const auto events = parseTrace(rec.toJson(), "memory");
+  ASSERT_TRUE(events) << events.message();
+  ASSERT_EQ(events->size(), 6u);
+  EXPECT_EQ((*events)[1].name, "track");
+  EXPECT_EQ((*events)[1].duration_ns, 8'000'500);
+  const auto frames = replayFramesFromTrace(*events);
+  ASSERT_TRUE(frames) << frames.message();
+  ASSERT_EQ(frames->size(), 3u);
+  EXPECT_EQ((*frames)[2].arrival_ns, 66'000'000);
+  EXPECT_NEAR((*frames)[2].totalMs(), 13.0005, 1e-9);
+}
+
+TEST(Trace, BadTracesGiveErrorsNamingTheSource) {
+  auto a = parseTrace("{\"traceEvents\": [", "broken.json");
+  ASSERT_FALSE(a);
+  EXPECT_NE(a.message().find("broken.json"), std::string::npos) << a.message();
+  auto b = parseTrace("{\"other\": 1}", "other.json");
+  ASSERT_FALSE(b);
+  EXPECT_NE(b.message().find("traceEvents"), std::string::npos) << b.message();
+  auto c = parseTrace("{\"traceEvents\": [{\"ph\": \"X\", \"name\": \"track\"}]}", "nots.json");
+  ASSERT_FALSE(c);
+  EXPECT_NE(c.message().find("nots.json: event 0"), std::string::npos) << c.message();
+  EXPECT_FALSE(readTrace("/nonexistent/trace.json"));
+  EXPECT_FALSE(replayFramesFromTrace({}));
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 
 #include "hxmap/core/frame.hpp"
+#include "hxmap/core/parallel.hpp"
 #include "hxmap/geometry/camera.hpp"
 #include "hxmap/preprocess/params.hpp"
 
@@ -50,7 +51,10 @@ inline float depthSigma(float z_m, const PreprocessParams& p) {
 
 /// frame.depth must be CV_32FC1 and frame.rgb CV_8UC3, both camera-sized;
 /// anything else gives a frame with no valid pixels (the caller reports it).
-PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params);
+/// `parallel` splits the row loops of the heavier filters (same result for
+/// any ParallelFor).
+PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params,
+                                  const ParallelFor& parallel = serialFor);
 
 /// Camera-frame normals from a vertex map (central differences); pixels whose
 /// neighbours are invalid or jump by more than `max_jump(z)` get 0.

@@ -12,6 +12,7 @@
 
 #include <Eigen/Geometry>
 
+#include "hxmap/core/parallel.hpp"
 #include "hxmap/geometry/se3.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/tracking/params.hpp"
@@ -43,10 +44,12 @@ struct PhotometricReference {
 /// `model[l]` is the model rendered at the reference pose for pyramid level l
 /// (model.size() <= frame.levels.size()). T_init is the initial guess. With a
 /// reference (and photometric_scale_m > 0) photometric residuals join the
-/// point-to-plane ones in each Gauss-Newton step.
+/// point-to-plane ones in each Gauss-Newton step. Row bands are summed in a
+/// fixed order, so the result is the same for any `parallel`.
 IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<ModelView>& model,
                             const Eigen::Isometry3d& T_init, const TrackingParams& params,
-                            const PhotometricReference& reference = {});
+                            const PhotometricReference& reference = {},
+                            const ParallelFor& parallel = serialFor);
 
 /// Keyframe test: motion or time since the last keyframe above thresholds.
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
