@@ -1,6 +1,8 @@
 #include "commands.hpp"
 
 #include <algorithm>
+#include <atomic>
+#include <csignal>
 #include <filesystem>
 
 #include <fmt/format.h>
@@ -10,6 +12,7 @@
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/parsers.hpp"
 #include "hxmap/dataset/ply.hpp"
+#include "hxmap/runtime/realtime.hpp"
 #include "hxmap/runtime/trace.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
@@ -86,6 +89,32 @@ std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, d
       100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
 }
 
+// SIGINT/SIGTERM ask the run to stop: outputs for what was processed are
+// still written and the exit code stays 0.
+std::atomic<bool> g_stop{false};
+extern "C" void onStopSignal(int) { g_stop.store(true); }
+
+class StopSignals {
+ public:
+  StopSignals() {
+    g_stop.store(false);
+    struct sigaction sa {};
+    sa.sa_handler = onStopSignal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, &old_int_);
+    sigaction(SIGTERM, &sa, &old_term_);
+  }
+  ~StopSignals() {
+    sigaction(SIGINT, &old_int_, nullptr);
+    sigaction(SIGTERM, &old_term_, nullptr);
+  }
+  StopSignals(const StopSignals&) = delete;
+  StopSignals& operator=(const StopSignals&) = delete;
+
+ private:
+  struct sigaction old_int_ {}, old_term_ {};
+};
+
 }  // namespace
 
 int runCommand(const RunOptions& o) {
@@ -147,15 +176,67 @@ int runCommand(const RunOptions& o) {
   std::array<std::vector<double>, kStageCount> stage_ms;
   std::vector<double> total_ms;
   size_t bad_frames = 0, tracked = 0;
-  std::string first_error;
-  Progress progress("mapping", frames.size());
+  std::string first_error, realtime_report;
+  bool stopped = false;
+  StopSignals signals;
   const auto t_start = std::chrono::steady_clock::now();
   TraceRecorder trace;
-  trace.nameThread(1, "frontend");
+  trace.nameThread(1, "frontend");  // offline run
+  trace.nameThread(2, "hx-frontend");  // --realtime
   auto since_start = [&](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
   };
-  for (size_t k = 0; k < frames.size(); ++k) {
+  auto tally = [&](const FrameResult& r) {
+    tracked += r.tracked;
+    double sum = 0;
+    for (int s = 0; s < kStageCount; ++s) {
+      stage_ms[s].push_back(r.stage_ms[s]);
+      sum += r.stage_ms[s];
+    }
+    total_ms.push_back(sum);
+    return sum;
+  };
+  if (o.realtime) {
+    // Frames are decoded up front (a camera delivers decoded frames), then
+    // played at their recorded rate through the runtime's threads.
+    const double mib = static_cast<double>(frames.size()) * cam.width * cam.height * 7 / (1 << 20);
+    if (mib > 8192) {
+      spdlog::error("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames", frames.size(), mib);
+      return 2;
+    }
+    std::vector<RgbdFrame> loaded;
+    Progress loading("loading", frames.size());
+    for (size_t k = 0; k < frames.size() && !g_stop.load(); ++k) {
+      auto frame = ds.load(frames[k]);
+      if (!frame) {
+        if (!dopt.skip_bad) {
+          spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
+          return 1;
+        }
+        ++bad_frames;
+        spdlog::warn("skipped frame {}: {}", frames[k], frame.message());
+      } else {
+        loaded.push_back(std::move(*frame));
+      }
+      loading.update(k + 1);
+    }
+    RealtimeOptions ro;
+    ro.fps = o.fps;
+    ro.burn_slice_ms = o.burn_ms;
+    ro.refine_workers = c.runtime.refine_workers;
+    ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
+    ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+    const RealtimeStats rs = runRealtime(loaded, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace);
+    for (const auto& r : rs.results) tally(r);
+    realtime_report = rs.report;
+    stopped = rs.stopped_early;
+  }
+  Progress progress("mapping", frames.size());
+  for (size_t k = 0; k < frames.size() && !o.realtime; ++k) {
+    if (g_stop.load()) {
+      stopped = true;
+      break;
+    }
     const auto t_load = std::chrono::steady_clock::now();
     auto frame = ds.load(frames[k]);
     if (!frame) {
@@ -186,13 +267,7 @@ int runCommand(const RunOptions& o) {
                   r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),
                   r.T_world_cam.translation().z());
     if (!r.tracked) spdlog::warn("frame {} ({}): tracking lost: {}", frames[k], frame->stamp_ns, r.failure);
-    tracked += r.tracked;
-    double sum = 0;
-    for (int s = 0; s < kStageCount; ++s) {
-      stage_ms[s].push_back(r.stage_ms[s]);
-      sum += r.stage_ms[s];
-    }
-    total_ms.push_back(sum);
+    const double sum = tally(r);
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
@@ -226,9 +301,13 @@ int runCommand(const RunOptions& o) {
   }
   const auto pt = percentiles(total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
-  summary += fmt::format("throughput: {:.1f} frames/s over {:.1f} s wall (image loading included, {} threads)\n",
-                         static_cast<double>(total_ms.size()) / wall_s, wall_s,
-                         c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
+  if (o.realtime) {
+    summary += realtime_report;
+  } else {
+    summary += fmt::format("throughput: {:.1f} frames/s over {:.1f} s wall (image loading included, {} threads)\n",
+                           static_cast<double>(total_ms.size()) / wall_s, wall_s,
+                           c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
+  }
   if (!ds.groundTruth().empty()) summary += trajectoryMetricsText(frontend.trajectory(), ds.groundTruth(), c.eval.rpe_delta_s);
   const fs::path gt_mesh_path = fs::path(ds.dir()) / "gt_mesh.ply";
   if (!o.no_mesh_eval && fs::exists(gt_mesh_path)) {
@@ -251,6 +330,7 @@ int runCommand(const RunOptions& o) {
   }
   summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
   if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
+  if (stopped) summary += "stopped early by a signal: outputs cover the frames processed until then\n";
   if (!o.trace.empty()) {
     if (auto s = trace.write(o.trace); !s) {
       spdlog::error("{}", s.message());

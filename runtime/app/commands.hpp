@@ -14,6 +14,9 @@ struct RunOptions {
   bool skip_bad = false;
   bool no_mesh_eval = false;
   std::string trace;    ///< Chrome trace JSON of per-frame stage timings; empty = none
+  bool realtime = false;  ///< play at the recorded rate through the runtime's threads
+  double fps = 0;         ///< with realtime: playback rate (0 = recorded stamps)
+  double burn_ms = 0;     ///< with realtime: inject CPU-burning refinement slices of this many ms
 };
 int runCommand(const RunOptions& options);
 

@@ -22,6 +22,13 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
   run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames");
   run_cmd->add_option("--trace", run.trace, "write per-frame stage timings as a Chrome/Perfetto trace (JSON)");
+  run_cmd->add_flag("--realtime", run.realtime,
+                    "play the dataset at its recorded rate through the runtime threads (frames load first)");
+  run_cmd->add_option("--fps", run.fps, "with --realtime: playback rate instead of the recorded stamps")
+      ->check(CLI::Range(0.1, 1000.0));
+  run_cmd->add_option("--burn-ms", run.burn_ms,
+                      "with --realtime: inject a CPU-burning refinement job with slices of this many ms")
+      ->check(CLI::Range(0.0, 10000.0));
   run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");
   run_cmd->add_flag("--no-mesh-eval", run.no_mesh_eval, "do not score the mesh against gt_mesh.ply");
 

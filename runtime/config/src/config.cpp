@@ -128,6 +128,9 @@ void visit(HxmapConfig& c, Visitor& v) {
 
   v.section("runtime");
   v.integer("threads", c.runtime.threads, 0, 1024);
+  v.integer("refine_workers", c.runtime.refine_workers, 0, 64);
+  v.number("deadline_margin_ms", c.runtime.deadline_margin_ms, 0, 1000);
+  v.integer("shed_after_periods", c.runtime.shed_after_periods, 1, 100000);
 }
 
 class Loader : public Visitor {

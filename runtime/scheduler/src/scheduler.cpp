@@ -61,6 +61,7 @@ void Scheduler::frameArrived(int64_t arrival_ns) {
   frames_in_.fetch_add(1, std::memory_order_relaxed);
   // The next frame is expected one period later: background work must leave
   // the CPUs by then.
+  last_arrival_ns_.store(arrival_ns, std::memory_order_release);
   next_due_ns_.store(arrival_ns + period_ns_, std::memory_order_release);
 }
 
@@ -68,6 +69,7 @@ void Scheduler::framesDropped(size_t n) { frames_dropped_.fetch_add(n, std::memo
 
 void Scheduler::frameStarted(int64_t now_ns, int64_t arrival_ns) {
   current_arrival_ns_ = arrival_ns;
+  started_arrival_ns_.store(arrival_ns, std::memory_order_release);
   const double predicted = stages_[static_cast<size_t>(FrontendStage::kTotal)].predict();
   frame_end_pred_ns_.store(now_ns + msToNs(predicted), std::memory_order_release);
 }
@@ -79,6 +81,8 @@ bool Scheduler::frameFinished(int64_t now_ns, const std::array<double, 4>& stage
     sum += stage_ms[s];
   }
   stages_[static_cast<size_t>(FrontendStage::kTotal)].add(total_ms > 0 ? total_ms : sum);
+  frontend_pred_ns_.store(msToNs(stages_[static_cast<size_t>(FrontendStage::kTotal)].predict()),
+                          std::memory_order_release);
   frame_end_pred_ns_.store(now_ns, std::memory_order_release);
   frames_processed_.fetch_add(1, std::memory_order_relaxed);
   const bool met = now_ns <= current_arrival_ns_ + period_ns_;
@@ -108,7 +112,11 @@ bool Scheduler::frameFinished(int64_t now_ns, const std::array<double, 4>& stage
 }
 
 double Scheduler::slackMs(int64_t now_ns) const {
-  const int64_t busy_until = std::max(now_ns, frame_end_pred_ns_.load(std::memory_order_acquire));
+  int64_t busy_until = std::max(now_ns, frame_end_pred_ns_.load(std::memory_order_acquire));
+  // A frame that has arrived but not started runs next, for its predicted cost.
+  if (last_arrival_ns_.load(std::memory_order_acquire) > started_arrival_ns_.load(std::memory_order_acquire)) {
+    busy_until += frontend_pred_ns_.load(std::memory_order_acquire);
+  }
   return nsToMs(next_due_ns_.load(std::memory_order_acquire) - margin_ns_ - busy_until);
 }
 
@@ -132,7 +140,9 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
     predicted = predictSliceLocked(job);
   }
   if (predicted_ms) *predicted_ms = predicted;
-  if (predicted <= slackMs(now_ns)) {
+  // No prediction of the frontend yet (the first frames): no slack to give.
+  const bool warm = frames_processed_.load(std::memory_order_acquire) >= static_cast<uint64_t>(params_.warmup_frames);
+  if (warm && predicted <= slackMs(now_ns)) {
     job.last_admitted_ns = now_ns;
     slices_admitted_.fetch_add(1, std::memory_order_relaxed);
     return Verdict::kRun;

@@ -111,6 +111,31 @@ TEST(Scheduler, FeedbackEffortDropsUnderTightSlackAndRecovers) {
   EXPECT_EQ(s.feedbackEffort(), 3);
 }
 
+TEST(Scheduler, AFrameWaitingToStartTakesItsPredictedCostFromTheSlack) {
+  Scheduler s;  // 25 FPS, 1 ms margin, 3 warm-up frames
+  JobTicket job{"refine", 20.0};
+  s.jobSubmitted(job, 0);
+  const int64_t ms = 1'000'000;
+  for (int i = 0; i < 3; ++i) {  // frames of 30 ms at 0, 40, 80 ms
+    EXPECT_EQ(s.admitSlice(job, i * 40 * ms), Verdict::kWait) << "no slice before the warm-up frames";
+    s.frameArrived(i * 40 * ms);
+    s.frameStarted(i * 40 * ms, i * 40 * ms);
+    s.frameFinished(i * 40 * ms + 30 * ms, {5, 10, 5, 10});
+  }
+  EXPECT_NEAR(s.slackMs(111 * ms), 120 - 1 - 111, 1e-6) << "the next frame is due at 120 ms";
+  s.frameArrived(120 * ms);
+  // At 121 ms the frame that arrived at 120 ms still waits: it will run to
+  // ~151 ms, and the next is due at 160 ms.
+  EXPECT_NEAR(s.slackMs(121 * ms), 160 - 1 - (121 + 30), 1e-6);
+  EXPECT_EQ(s.admitSlice(job, 121 * ms), Verdict::kWait);
+  s.frameStarted(121 * ms, 120 * ms);
+  s.frameFinished(151 * ms, {5, 10, 5, 10});
+  EXPECT_NEAR(s.slackMs(151 * ms), 8.0, 1e-6);
+  JobTicket small{"small", 5.0};
+  s.jobSubmitted(small, 151 * ms);
+  EXPECT_EQ(s.admitSlice(small, 151 * ms), Verdict::kRun);
+}
+
 // A trace recorded from `hxmap run --trace` on the shared TUM fr1/xyz slice
 // (both cores; frontend median 23 ms), replayed at its recorded 30 FPS.
 std::vector<ReplayFrame> recordedTumFrames() {

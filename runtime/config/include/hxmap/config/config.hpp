@@ -51,6 +51,9 @@ struct EvalConfig {
 
 struct RuntimeConfig {
   int threads = 0;  ///< data-parallel threads for the offline run; 0 = all cores
+  int refine_workers = 1;          ///< background refinement threads (--realtime)
+  double deadline_margin_ms = 1.0; ///< kept free before each frame is due
+  int shed_after_periods = 8;      ///< background jobs without slack this long are shed
 };
 
 struct HxmapConfig {

@@ -7,7 +7,9 @@
 // Work is therefore admitted only when it is predicted to end before the next
 // frame is due, a margin earlier: the predicted slack of the current period
 // is (next arrival - margin) - max(now, predicted end of the frame in
-// progress). A job's slice is admitted when its predicted cost fits; a job
+// progress), and when a frame has arrived but not started, its predicted
+// cost is added to that end. A job's slice is admitted when its predicted
+// cost fits (and not before `warmup_frames` frames have measured costs); a job
 // that found no slack for `shed_after_periods` periods is shed (never
 // started: "not started"; started: "cancelled"); a started job that waits is
 // "paused". Pose feedback degrades before it is shed: its effort level
@@ -18,8 +20,9 @@
 // recent frames; predictions use the larger. Percentiles come from a bounded
 // window of recent samples.
 //
-// Threads: frameArrived/frameStarted/frameFinished/framesDropped are called
-// by the frontend thread only; admitSlice/sliceFinished/jobFinished by
+// Threads: frameStarted/frameFinished are called by the frontend thread
+// only; frameArrived/framesDropped by the frontend or the sensor thread (one
+// of them); admitSlice/sliceFinished/jobFinished by
 // background threads, each for its own JobTicket. The values they share
 // (period end, predicted frame end, counters) are atomics. costs() and
 // report() read frontend-owned models: call them from the frontend thread
@@ -46,6 +49,7 @@ struct SchedulerParams {
   int recent_frames = 32;         ///< window of the recent maximum and percentiles (frames)
   int shed_after_periods = 8;     ///< a job without slack for this many periods is shed
   int max_feedback_effort = 3;    ///< pose feedback effort levels above 0 (off)
+  int warmup_frames = 3;          ///< no background slice before this many frames have a measured cost
 };
 
 /// Cost of one stage or job kind: EWMA, recent maximum, percentiles.
@@ -149,6 +153,9 @@ class Scheduler {
   // Shared with background threads.
   std::atomic<int64_t> next_due_ns_{0};        ///< when the next frame is due
   std::atomic<int64_t> frame_end_pred_ns_{0};  ///< predicted end of the frame in progress
+  std::atomic<int64_t> last_arrival_ns_{-1};   ///< newest frame arrival
+  std::atomic<int64_t> started_arrival_ns_{-1};  ///< arrival of the newest frame started
+  std::atomic<int64_t> frontend_pred_ns_{0};   ///< predicted frontend cost per frame
   std::atomic<int> feedback_effort_;
   std::atomic<uint64_t> frames_in_{0}, frames_processed_{0}, frames_dropped_{0}, misses_{0};
   std::atomic<uint64_t> jobs_submitted_{0}, slices_admitted_{0}, jobs_completed_{0}, shed_unstarted_{0},

@@ -1,0 +1,64 @@
+// Real-time playback through the runtime's threads: frames are published at
+// their recorded rate (or a given one) by a sensor thread, the frontend
+// thread processes the newest within the frame deadline, a refinement worker
+// pool runs background jobs in cooperative slices admitted by the scheduler,
+// and a pose-feedback thread consumes keyframes.
+//
+// Threads (created once per run, named, joined before return):
+//   hx-sensor     publishes frame indices into a LatestSlot at their due time;
+//                 an unread older frame is replaced and counted as dropped.
+//   hx-frontend   the only thread touching the Frontend (and so the map).
+//   hx-refine-N   refinement workers; each job slice asks the scheduler first.
+//   hx-feedback   takes keyframe messages from an SpscRing (the sliding-window
+//                 optimization itself is not part of this runner yet: it
+//                 counts the keyframes it would optimize).
+// The calling thread prints the status line and watches `stop` (set by a
+// signal handler): on stop the sensor stops publishing, the frontend finishes
+// the frame in hand, workers cancel their jobs, and everything is joined, so
+// the caller can write every output.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "hxmap/core/frame.hpp"
+#include "hxmap/frontend/frontend.hpp"
+#include "hxmap/runtime/scheduler.hpp"
+#include "hxmap/runtime/trace.hpp"
+
+namespace hxmap::rt {
+
+struct RealtimeOptions {
+  double fps = 0;                  ///< playback rate; 0 = the recorded stamps
+  SchedulerParams scheduler;       ///< target_fps is set from the playback rate when fps > 0
+  int refine_workers = 1;
+  /// Inject a CPU-burning refinement load: jobs of slices of this many ms,
+  /// resubmitted as soon as one ends or is shed (0 = none).
+  double burn_slice_ms = 0;
+  int burn_slices_per_job = 20;
+  double status_interval_s = 0.5;  ///< status line period; 0 = none
+};
+
+struct RealtimeStats {
+  SchedulerCounters counters;
+  double wall_s = 0;
+  double fps = 0;                  ///< frames processed per second of playback
+  double latency_p50_ms = 0, latency_p99_ms = 0;    ///< arrival to pose
+  double frontend_p50_ms = 0, frontend_p99_ms = 0;
+  uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
+  bool stopped_early = false;
+  std::string report;              ///< the final table
+  std::vector<FrameResult> results;
+};
+
+/// Plays `frames` (already loaded; stamps give the recorded rate) through
+/// the threads. `heartbeat` (optional) is called by the calling thread about
+/// every status interval while the run is healthy (service watchdog).
+RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& frontend, const RealtimeOptions& options,
+                          const std::atomic<bool>& stop, TraceRecorder* trace = nullptr,
+                          const std::function<void()>& heartbeat = {});
+
+}  // namespace hxmap::rt

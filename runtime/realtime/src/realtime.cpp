@@ -1,0 +1,240 @@
+#include "hxmap/runtime/realtime.hpp"
+
+#include <pthread.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <thread>
+
+#include <unistd.h>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "hxmap/runtime/latest_slot.hpp"
+#include "hxmap/runtime/spsc_ring.hpp"
+
+namespace hxmap::rt {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+void nameThisThread(const char* name) { pthread_setname_np(pthread_self(), name); }
+
+double percentileOf(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(std::lround(q * static_cast<double>(v.size() - 1))))];
+}
+
+struct KeyframeMsg {
+  int64_t stamp_ns = 0;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
+}  // namespace
+
+RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& frontend, const RealtimeOptions& options,
+                          const std::atomic<bool>& stop, TraceRecorder* trace, const std::function<void()>& heartbeat) {
+  RealtimeStats stats;
+  if (frames.empty()) return stats;
+  // Due times: the recorded stamps, or a fixed rate.
+  std::vector<int64_t> due_ns(frames.size());
+  for (size_t i = 0; i < frames.size(); ++i) {
+    due_ns[i] = options.fps > 0 ? static_cast<int64_t>(std::llround(static_cast<double>(i) * 1e9 / options.fps))
+                                : frames[i].stamp_ns - frames[0].stamp_ns;
+  }
+  SchedulerParams sp = options.scheduler;
+  if (options.fps > 0) {
+    sp.target_fps = options.fps;
+  } else if (frames.size() > 1 && due_ns.back() > 0) {
+    sp.target_fps = static_cast<double>(frames.size() - 1) * 1e9 / static_cast<double>(due_ns.back());
+  }
+  Scheduler sched(sp);
+
+  const Clock::time_point t0 = Clock::now() + std::chrono::milliseconds(20);
+  auto now_ns = [&] { return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t0).count(); };
+
+  LatestSlot<size_t> sensor_slot;
+  std::atomic<uint64_t> published{0};
+  std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
+  std::vector<int64_t> arrival_ns(frames.size(), 0);  // written by the sensor before publish
+  SpscRing<KeyframeMsg> keyframes(64);
+  std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
+  std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
+  latency_ms.reserve(frames.size());
+  frontend_ms.reserve(frames.size());
+  stats.results.reserve(frames.size());
+
+  std::thread sensor([&] {
+    nameThisThread("hx-sensor");
+    for (size_t i = 0; i < frames.size() && !stop.load(); ++i) {
+      std::this_thread::sleep_until(t0 + std::chrono::nanoseconds(due_ns[i]));
+      if (stop.load()) break;
+      arrival_ns[i] = now_ns();
+      sched.frameArrived(arrival_ns[i]);
+      if (sensor_slot.publish(size_t{i})) {
+        sched.framesDropped(1);
+        spdlog::debug("frame {} replaced an unprocessed one (dropped)", i);
+      }
+      published.fetch_add(1, std::memory_order_release);
+      published.notify_one();
+    }
+    sensor_done.store(true);
+    published.fetch_add(1, std::memory_order_release);  // wake the frontend
+    published.notify_one();
+  });
+
+  std::thread frontend_thread([&] {
+    nameThisThread("hx-frontend");
+    while (true) {
+      // Read the publish count before looking: a frame published after the
+      // look changes it, so the wait below cannot miss it.
+      const uint64_t seen = published.load(std::memory_order_acquire);
+      size_t idx = 0;
+      if (!sensor_slot.take(idx)) {
+        if (sensor_done.load()) break;
+        published.wait(seen, std::memory_order_acquire);
+        continue;
+      }
+      const int64_t start = now_ns();
+      sched.frameStarted(start, arrival_ns[idx]);
+      FrameResult r = frontend.process(frames[idx]);
+      const int64_t end = now_ns();
+      double total = 0;
+      for (double ms : r.stage_ms) total += ms;
+      sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
+                          static_cast<double>(end - start) * 1e-6);
+      latency_ms.push_back(static_cast<double>(end - arrival_ns[idx]) * 1e-6);
+      frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
+      if (trace) {
+        int64_t t = start;
+        for (int s = 0; s < kStageCount; ++s) {
+          if (r.stage_ms[s] <= 0) continue;
+          const auto d = static_cast<int64_t>(r.stage_ms[s] * 1e6);
+          trace->add({stageName(s), "frontend", t, d, 2, static_cast<int64_t>(idx), frames[idx].stamp_ns});
+          t += d;
+        }
+      }
+      if (r.keyframe) {
+        if (!keyframes.tryPush(KeyframeMsg{r.stamp_ns, r.T_world_cam})) keyframes_full.fetch_add(1);
+      }
+      stats.results.push_back(std::move(r));
+      frames_done.fetch_add(1, std::memory_order_relaxed);
+    }
+    frontend_done.store(true);
+  });
+
+  std::thread feedback([&] {
+    nameThisThread("hx-feedback");
+    KeyframeMsg kf;
+    while (!workers_stop.load()) {
+      if (keyframes.tryPop(kf)) {
+        keyframes_seen.fetch_add(1);
+        continue;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+    while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
+  });
+
+  std::vector<std::thread> workers;
+  for (int w = 0; w < options.refine_workers && options.burn_slice_ms > 0; ++w) {
+    workers.emplace_back([&, w] {
+      const std::string name = fmt::format("hx-refine-{}", w);
+      nameThisThread(name.c_str());
+      JobTicket job{"burn", options.burn_slice_ms};
+      int done = 0;
+      sched.jobSubmitted(job, now_ns());
+      volatile double sink = 0;
+      while (!workers_stop.load()) {
+        const Verdict v = sched.admitSlice(job, now_ns());
+        if (v == Verdict::kWait) {
+          std::this_thread::sleep_for(std::chrono::microseconds(500));
+          continue;
+        }
+        if (v == Verdict::kShed || done == options.burn_slices_per_job) {
+          if (v != Verdict::kShed) sched.jobFinished(job);
+          job = JobTicket{"burn", options.burn_slice_ms};
+          done = 0;
+          sched.jobSubmitted(job, now_ns());
+          continue;
+        }
+        const int64_t s0 = now_ns(), s_end = s0 + static_cast<int64_t>(options.burn_slice_ms * 1e6);
+        while (now_ns() < s_end) {  // burn the CPU
+          for (int k = 0; k < 1000; ++k) sink = sink + std::sqrt(static_cast<double>(k) + sink * 1e-9);
+        }
+        const int64_t s1 = now_ns();
+        sched.sliceFinished(job, static_cast<double>(s1 - s0) * 1e-6);
+        burn_slices.fetch_add(1);
+        ++done;
+        if (trace) trace->add({"burn", "background", s0, s1 - s0, 3 + w, -1, -1});
+      }
+      (void)sink;
+    });
+  }
+
+  // Status line and stop handling on the calling thread.
+  const auto wall0 = Clock::now();
+  auto last_status = Clock::now();
+  uint64_t last_done = 0;
+  const bool tty = isatty(STDERR_FILENO) != 0;
+  while (!frontend_done.load()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    if (stop.load()) stats.stopped_early = true;  // the sensor stops; the frontend drains and ends
+    const double since = std::chrono::duration<double>(Clock::now() - last_status).count();
+    if (options.status_interval_s > 0 && since >= options.status_interval_s) {
+      const uint64_t done = frames_done.load();
+      const SchedulerCounters c = sched.counters();
+      const std::string line = fmt::format(
+          "realtime: {:5.1f} FPS, {} of {} frames, dropped {}, deadline misses {}, shed jobs {}, burn slices {}",
+          static_cast<double>(done - last_done) / since, done, frames.size(), c.frames_dropped, c.deadline_misses,
+          c.jobs_shed_unstarted + c.jobs_cancelled, burn_slices.load());
+      if (tty) {
+        std::fprintf(stderr, "\r%s   ", line.c_str());
+      } else {
+        std::fprintf(stderr, "%s\n", line.c_str());
+      }
+      last_status = Clock::now();
+      last_done = done;
+      if (heartbeat) heartbeat();
+    }
+  }
+  sensor.join();
+  frontend_thread.join();
+  workers_stop.store(true);
+  for (auto& w : workers) w.join();
+  feedback.join();
+  if (tty && options.status_interval_s > 0) std::fputc('\n', stderr);
+
+  stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();
+  stats.counters = sched.counters();
+  const double played_s = std::max(1e-9, static_cast<double>(due_ns.back()) * 1e-9 + sched.periodNs() * 1e-9);
+  stats.fps = static_cast<double>(stats.counters.frames_processed) / std::min(stats.wall_s, played_s);
+  stats.latency_p50_ms = percentileOf(latency_ms, 0.5);
+  stats.latency_p99_ms = percentileOf(latency_ms, 0.99);
+  stats.frontend_p50_ms = percentileOf(frontend_ms, 0.5);
+  stats.frontend_p99_ms = percentileOf(frontend_ms, 0.99);
+  stats.burn_slices_run = burn_slices.load();
+  stats.keyframes_to_feedback = keyframes_seen.load();
+  stats.feedback_ring_full = keyframes_full.load();
+  const SchedulerCounters& c = stats.counters;
+  stats.report = fmt::format(
+      "realtime playback at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement\n"
+      "  frames: in {}, processed {}, dropped {}, deadline misses {}\n"
+      "  sustained {:.1f} FPS; latency arrival->pose p50 {:.1f} ms, p99 {:.1f} ms; frontend p50 {:.1f} ms, p99 {:.1f} ms\n"
+      "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices run ({:.0f} ms of CPU), "
+      "{} paused\n"
+      "  keyframes to pose feedback: {} (ring full {} times)\n",
+      sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()), workers.size(), c.frames_in,
+      c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
+      stats.frontend_p50_ms, stats.frontend_p99_ms, c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted,
+      c.jobs_cancelled, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
+      c.slices_paused, stats.keyframes_to_feedback, stats.feedback_ring_full);
+  return stats;
+}
+
+}  // namespace hxmap::rt
