@@ -21,6 +21,7 @@
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "parallel.hpp"
 #include "progress.hpp"
+#include "sd_notify.hpp"
 
 namespace fs = std::filesystem;
 
@@ -226,7 +227,14 @@ int runCommand(const RunOptions& o) {
     ro.refine_workers = c.runtime.refine_workers;
     ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
     ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
-    const RealtimeStats rs = runRealtime(loaded, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace);
+    // Under systemd (Type=notify): ready once the frames are loaded, then a
+    // watchdog heartbeat from the status loop while the run is healthy.
+    sdNotify(fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
+    const bool watchdog = sdWatchdogUsec() > 0;
+    const RealtimeStats rs = runRealtime(loaded, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace, [&] {
+      if (watchdog) sdNotify("WATCHDOG=1");
+    });
+    sdNotify("STOPPING=1\nSTATUS=writing outputs");
     for (const auto& r : rs.results) tally(r);
     realtime_report = rs.report;
     stopped = rs.stopped_early;

@@ -186,6 +186,10 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
     if (stop.load()) stats.stopped_early = true;  // the sensor stops; the frontend drains and ends
     const double since = std::chrono::duration<double>(Clock::now() - last_status).count();
+    const double interval = options.status_interval_s > 0 ? options.status_interval_s : 0.5;
+    if (since >= interval) {
+      if (heartbeat) heartbeat();
+    }
     if (options.status_interval_s > 0 && since >= options.status_interval_s) {
       const uint64_t done = frames_done.load();
       const SchedulerCounters c = sched.counters();
@@ -198,10 +202,9 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       } else {
         std::fprintf(stderr, "%s\n", line.c_str());
       }
-      last_status = Clock::now();
       last_done = done;
-      if (heartbeat) heartbeat();
     }
+    if (since >= interval) last_status = Clock::now();
   }
   sensor.join();
   frontend_thread.join();
