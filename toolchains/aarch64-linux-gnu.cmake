@@ -3,8 +3,11 @@
 #   apt install g++-aarch64-linux-gnu
 #   cmake -S . -B build-arm64 -G Ninja -DCMAKE_TOOLCHAIN_FILE=toolchains/aarch64-linux-gnu.cmake
 # Libraries for the target come either from Debian multiarch packages
-# (dpkg --add-architecture arm64; apt install libeigen3-dev libopencv-dev:arm64 ...)
+# (dpkg --add-architecture arm64; apt install libopencv-dev:arm64 libyaml-cpp-dev:arm64 ...)
 # or from a target root file system given as -DHXMAP_SYSROOT=/path/to/rootfs.
+# -DHXMAP_ALGORITHMS_ONLY=ON builds just the algorithms libraries and needs
+# only libopencv-core-dev:arm64 and libopencv-imgproc-dev:arm64 (what CI
+# checks, see .ci/cross).
 set(CMAKE_SYSTEM_NAME Linux)
 set(CMAKE_SYSTEM_PROCESSOR aarch64)
 
