@@ -63,6 +63,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
   std::vector<int64_t> arrival_ns(frames.size(), 0);  // written by the sensor before publish
   SpscRing<KeyframeMsg> keyframes(64);
+  std::atomic<uint64_t> keyframes_pushed{0};
   std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
   std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
   latency_ms.reserve(frames.size());
@@ -121,6 +122,8 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       }
       if (r.keyframe) {
         if (!keyframes.tryPush(KeyframeMsg{r.stamp_ns, r.T_world_cam})) keyframes_full.fetch_add(1);
+        keyframes_pushed.fetch_add(1, std::memory_order_release);
+        keyframes_pushed.notify_one();
       }
       stats.results.push_back(std::move(r));
       frames_done.fetch_add(1, std::memory_order_relaxed);
@@ -132,11 +135,12 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
     nameThisThread("hx-feedback");
     KeyframeMsg kf;
     while (!workers_stop.load()) {
+      const uint64_t seen = keyframes_pushed.load(std::memory_order_acquire);
       if (keyframes.tryPop(kf)) {
         keyframes_seen.fetch_add(1);
         continue;
       }
-      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      keyframes_pushed.wait(seen, std::memory_order_acquire);  // no polling
     }
     while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
   });
@@ -151,9 +155,10 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       sched.jobSubmitted(job, now_ns());
       volatile double sink = 0;
       while (!workers_stop.load()) {
+        const uint64_t epoch = sched.frameEpoch();
         const Verdict v = sched.admitSlice(job, now_ns());
         if (v == Verdict::kWait) {
-          std::this_thread::sleep_for(std::chrono::microseconds(500));
+          sched.waitForFrameEnd(epoch);  // slack changes when a frame ends
           continue;
         }
         if (v == Verdict::kShed || done == options.burn_slices_per_job) {
@@ -209,6 +214,9 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   sensor.join();
   frontend_thread.join();
   workers_stop.store(true);
+  sched.wakeAll();
+  keyframes_pushed.fetch_add(1, std::memory_order_release);
+  keyframes_pushed.notify_all();
   for (auto& w : workers) w.join();
   feedback.join();
   if (tty && options.status_interval_s > 0) std::fputc('\n', stderr);

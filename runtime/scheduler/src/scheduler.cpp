@@ -108,6 +108,7 @@ bool Scheduler::frameFinished(int64_t now_ns, const std::array<double, 4>& stage
     ++e;
   }
   feedback_effort_.store(e, std::memory_order_relaxed);
+  wakeAll();  // background threads re-check their slack
   return met;
 }
 

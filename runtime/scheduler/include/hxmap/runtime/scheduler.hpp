@@ -128,6 +128,18 @@ class Scheduler {
   void sliceFinished(const JobTicket& job, double ms);
   void jobFinished(const JobTicket& job);
 
+  /// Changes whenever a frame finishes; background threads that were told kWait block
+  /// in waitForFrameEnd(epoch) instead of polling (each wake-up of a polling
+  /// thread preempts a frontend thread on a small machine).
+  uint64_t frameEpoch() const { return epoch_.load(std::memory_order_acquire); }
+  /// Blocks until a frame finishes (or wakeAll is called) after `epoch` was read.
+  void waitForFrameEnd(uint64_t epoch) const { epoch_.wait(epoch, std::memory_order_acquire); }
+  /// Wakes every waiter, also one about to wait (shutdown).
+  void wakeAll() {
+    epoch_.fetch_add(1, std::memory_order_release);
+    epoch_.notify_all();
+  }
+
   /// Predicted slack of the current period at `now_ns`, ms (may be negative).
   double slackMs(int64_t now_ns) const;
 
@@ -157,6 +169,7 @@ class Scheduler {
   std::atomic<int64_t> started_arrival_ns_{-1};  ///< arrival of the newest frame started
   std::atomic<int64_t> frontend_pred_ns_{0};   ///< predicted frontend cost per frame
   std::atomic<int> feedback_effort_;
+  std::atomic<uint64_t> epoch_{0};  ///< bumped when a frame ends and by wakeAll
   std::atomic<uint64_t> frames_in_{0}, frames_processed_{0}, frames_dropped_{0}, misses_{0};
   std::atomic<uint64_t> jobs_submitted_{0}, slices_admitted_{0}, jobs_completed_{0}, shed_unstarted_{0},
       cancelled_{0}, paused_{0};
