@@ -67,6 +67,18 @@ TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
 }
 
+TEST_F(RealtimeTest, FrontendAppliesPoseCorrectionsToItsTrajectory) {
+  Frontend fe(cam_, FrontendParams{});
+  fe.setInitialPose(T0_);
+  for (int i = 0; i < 3; ++i) fe.process(frames_[static_cast<size_t>(i)]);
+  PoseCorrection c{frames_[1].stamp_ns, Eigen::Isometry3d::Identity()};
+  c.T_world_cam.translation() = Eigen::Vector3d(1, 2, 3);
+  EXPECT_TRUE(fe.applyPoseCorrection(c));
+  EXPECT_TRUE(fe.trajectory()[1].T_world_cam.translation().isApprox(Eigen::Vector3d(1, 2, 3)));
+  EXPECT_FALSE(fe.applyPoseCorrection({12345, Eigen::Isometry3d::Identity()})) << "no frame with that stamp";
+  EXPECT_EQ(fe.trajectory().size(), 3u);
+}
+
 TEST_F(RealtimeTest, StopEndsTheRunWithConsistentOutputs) {
   Frontend fe(cam_, FrontendParams{});
   fe.setInitialPose(T0_);

@@ -95,6 +95,16 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   return r;
 }
 
+bool Frontend::applyPoseCorrection(const PoseCorrection& c) {
+  for (auto it = trajectory_.rbegin(); it != trajectory_.rend(); ++it) {
+    if (it->stamp_ns != c.stamp_ns) continue;
+    it->T_world_cam = c.T_world_cam;
+    if (c.stamp_ns == last_kf_ns_) T_last_kf_ = c.T_world_cam;
+    return true;
+  }
+  return false;
+}
+
 void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   const int levels = static_cast<int>(fused.levels.size());
   // The model is raycast at pyramid level `model_level` (the fused frame's

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <thread>
 
 #include <unistd.h>
@@ -63,6 +64,15 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
   std::vector<int64_t> arrival_ns(frames.size(), 0);  // written by the sensor before publish
   SpscRing<KeyframeMsg> keyframes(64);
+  // Results coming back to the map's writer, applied between frames: TSDF
+  // patches from each refinement worker (one ring per producer) and pose
+  // corrections from pose feedback.
+  std::vector<std::unique_ptr<SpscRing<alg::TsdfPatch>>> patch_rings;
+  for (int w = 0; w < options.refine_workers && options.burn_slice_ms > 0; ++w) {
+    patch_rings.push_back(std::make_unique<SpscRing<alg::TsdfPatch>>(16));
+  }
+  SpscRing<PoseCorrection> corrections(64);
+  uint64_t patches_applied = 0, corrections_applied = 0;  // frontend thread
   std::atomic<uint64_t> keyframes_pushed{0};
   std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
   std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
@@ -101,6 +111,13 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
         published.wait(seen, std::memory_order_acquire);
         continue;
       }
+      // Between frames: what background threads sent back.
+      for (auto& ring : patch_rings) {
+        alg::TsdfPatch patch;
+        while (ring->tryPop(patch)) patches_applied += frontend.applyPatch(patch).applied > 0;
+      }
+      PoseCorrection correction;
+      while (corrections.tryPop(correction)) corrections_applied += frontend.applyPoseCorrection(correction);
       const int64_t start = now_ns();
       sched.frameStarted(start, arrival_ns[idx]);
       FrameResult r = frontend.process(frames[idx]);
@@ -231,6 +248,8 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   stats.frontend_p99_ms = percentileOf(frontend_ms, 0.99);
   stats.burn_slices_run = burn_slices.load();
   stats.keyframes_to_feedback = keyframes_seen.load();
+  stats.patches_applied = patches_applied;
+  stats.corrections_applied = corrections_applied;
   stats.feedback_ring_full = keyframes_full.load();
   const SchedulerCounters& c = stats.counters;
   stats.report = fmt::format(
@@ -239,12 +258,14 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       "  sustained {:.1f} FPS; latency arrival->pose p50 {:.1f} ms, p99 {:.1f} ms; frontend p50 {:.1f} ms, p99 {:.1f} ms\n"
       "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices run ({:.0f} ms of CPU), "
       "{} paused\n"
-      "  keyframes to pose feedback: {} (ring full {} times)\n",
+      "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} pose "
+      "corrections\n",
       sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()), workers.size(), c.frames_in,
       c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
       stats.frontend_p50_ms, stats.frontend_p99_ms, c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted,
       c.jobs_cancelled, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
-      c.slices_paused, stats.keyframes_to_feedback, stats.feedback_ring_full);
+      c.slices_paused, stats.keyframes_to_feedback, stats.feedback_ring_full, stats.patches_applied,
+      stats.corrections_applied);
   return stats;
 }
 

@@ -1,9 +1,12 @@
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
+#include "hxmap/tsdf/patch.hpp"
 #include "hxmap/tsdf/raycast.hpp"
 
 namespace hxmap::alg {
@@ -151,6 +154,27 @@ TEST(TsdfMap, AllocatesOnlyTheBandAndAccountsMemory) {
     for (const auto& st : map.block(b).stats) with_stats += st.updates > 1;
   }
   EXPECT_GT(with_stats, 1000u);
+}
+
+TEST(TsdfPatch, FusesLikeAnObservationAndRejectsBadValues) {
+  TsdfMap map(params(0.02));  // mu 8 cm, max weight 64
+  TsdfPatch patch;
+  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.01f, 2.0f});   // new block
+  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.04f, 2.0f});   // same voxel again
+  patch.entries.push_back({Eigen::Vector3i(-9, 0, 0), 0.5f, 1.0f});    // beyond the band: clamped
+  patch.entries.push_back({Eigen::Vector3i(0, 0, 0), std::nanf(""), 1.0f});
+  patch.entries.push_back({Eigen::Vector3i(0, 0, 0), 0.01f, 0.0f});
+  const PatchStats st = applyPatch(map, patch);
+  EXPECT_EQ(st.applied, 3u);
+  EXPECT_EQ(st.rejected, 2u);
+  EXPECT_EQ(st.blocks_allocated, 2u);
+  Voxel v;
+  ASSERT_TRUE(map.voxel(Eigen::Vector3i(3, -2, 9), v));
+  EXPECT_NEAR(v.sdf_m, 0.025f, 1e-6f) << "weighted mean of the two corrections";
+  EXPECT_NEAR(v.weight, 4.0f, 1e-6f);
+  ASSERT_TRUE(map.voxel(Eigen::Vector3i(-9, 0, 0), v));
+  EXPECT_NEAR(v.sdf_m, 0.08f, 1e-6f);
+  EXPECT_FALSE(map.voxel(Eigen::Vector3i(0, 0, 0), v)) << "rejected entries allocate nothing";
 }
 
 }  // namespace

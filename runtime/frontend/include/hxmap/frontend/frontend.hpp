@@ -10,6 +10,7 @@
 #include "hxmap/core/parallel.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/tracking/icp.hpp"
+#include "hxmap/tsdf/patch.hpp"
 #include "hxmap/tsdf/raycast.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
 
@@ -40,6 +41,12 @@ struct FrameResult {
   std::array<double, kStageCount> stage_ms{};
 };
 
+/// A corrected pose for a past frame (from pose feedback).
+struct PoseCorrection {
+  int64_t stamp_ns = 0;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
 class Frontend {
  public:
   Frontend(const alg::PinholeCamera& camera, const FrontendParams& params,
@@ -52,6 +59,15 @@ class Frontend {
   /// A frame that cannot be tracked is reported and not fused; the map is
   /// unchanged and tracking resumes from the last good pose.
   FrameResult process(const RgbdFrame& frame);
+
+  /// Between frames: fuse a correction computed on a snapshot of the map
+  /// (the frontend stays the map's only writer).
+  alg::PatchStats applyPatch(const alg::TsdfPatch& patch) { return alg::applyPatch(map_, patch); }
+  /// Between frames: rewrite the trajectory's pose for that stamp (and the
+  /// last keyframe's, when it is that frame). The live pose is re-estimated
+  /// against the map by the next frame's tracking. False when no frame has
+  /// that stamp.
+  bool applyPoseCorrection(const PoseCorrection& correction);
 
   const alg::TsdfMap& map() const { return map_; }
   const alg::PinholeCamera& camera() const { return camera_; }

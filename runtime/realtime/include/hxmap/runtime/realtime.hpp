@@ -12,6 +12,10 @@
 //   hx-feedback   takes keyframe messages from an SpscRing (the sliding-window
 //                 optimization itself is not part of this runner yet: it
 //                 counts the keyframes it would optimize).
+// Results flow back to the frontend through rings too (TSDF patches from
+// each worker, pose corrections from feedback) and are applied between
+// frames, so the frontend stays the map's only writer. No producer sends
+// any yet (refinement and the window optimization are later work).
 // The calling thread prints the status line and watches `stop` (set by a
 // signal handler): on stop the sensor stops publishing, the frontend finishes
 // the frame in hand, workers cancel their jobs, and everything is joined, so
@@ -49,6 +53,7 @@ struct RealtimeStats {
   double latency_p50_ms = 0, latency_p99_ms = 0;    ///< arrival to pose
   double frontend_p50_ms = 0, frontend_p99_ms = 0;
   uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
+  uint64_t patches_applied = 0, corrections_applied = 0;  ///< results applied between frames
   bool stopped_early = false;
   std::string report;              ///< the final table
   std::vector<FrameResult> results;

@@ -1,0 +1,31 @@
+#include "hxmap/tsdf/patch.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace hxmap::alg {
+
+PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
+  PatchStats stats;
+  const float mu = map.truncation();
+  const float max_w = static_cast<float>(map.params().max_weight);
+  const size_t before = map.blockCount();
+  for (const auto& e : patch.entries) {
+    if (!std::isfinite(e.sdf_m) || !std::isfinite(e.weight) || !(e.weight > 0.0f)) {
+      ++stats.rejected;
+      continue;
+    }
+    const BlockKey key(e.voxel.x() >> 3, e.voxel.y() >> 3, e.voxel.z() >> 3);
+    VoxelBlock& blk = map.block(static_cast<size_t>(map.findOrAllocate(key)));
+    VoxelGeometry& g = blk.geo[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)];
+    const float s = std::clamp(e.sdf_m, -mu, mu);
+    const float new_w = g.weight + e.weight;
+    g.sdf_m += (e.weight / new_w) * (s - g.sdf_m);
+    g.weight = std::min(new_w, max_w);
+    ++stats.applied;
+  }
+  stats.blocks_allocated = map.blockCount() - before;
+  return stats;
+}
+
+}  // namespace hxmap::alg
