@@ -260,16 +260,9 @@ int runCommand(const RunOptions& o) {
     const auto t_frame = std::chrono::steady_clock::now();
     const FrameResult r = frontend.process(*frame);
     if (!o.trace.empty()) {
-      // Stages run back to back inside process(): laid out from its start.
-      const int64_t stamp = frame->stamp_ns, seq = static_cast<int64_t>(frames[k]);
-      int64_t t = since_start(t_frame);
-      trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, stamp});
-      for (int s = 0; s < kStageCount; ++s) {
-        if (r.stage_ms[s] <= 0) continue;
-        const auto d = static_cast<int64_t>(r.stage_ms[s] * 1e6);
-        trace.add({stageName(s), "frontend", t, d, 1, seq, stamp});
-        t += d;
-      }
+      const int64_t seq = static_cast<int64_t>(frames[k]), t = since_start(t_frame);
+      trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, frame->stamp_ns});
+      traceFrameStages(trace, r, t, 1, seq);
     }
     spdlog::debug("frame {}: tracked {} inliers {} rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]", frames[k], r.tracked,
                   r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),

@@ -27,25 +27,25 @@ class RealtimeTest : public ::testing::Test {
       frames_.push_back(std::move(f));
     }
     T0_ = traj.front().T_world_cam;
+    fe_.setInitialPose(T0_);
+    options_.status_interval_s = 0;
   }
   const alg::PinholeCamera cam_{160, 160, 79.5, 59.5, 160, 120, {0, 0, 0, 0, 0}};
   std::vector<RgbdFrame> frames_;
   Eigen::Isometry3d T0_;
+  Frontend fe_{cam_, FrontendParams{}};
+  RealtimeOptions options_;  // no status line
+  std::atomic<bool> stop_{false};
 };
 
 TEST_F(RealtimeTest, EveryFrameIsProcessedOrCountedAsDropped) {
-  Frontend fe(cam_, FrontendParams{});
-  fe.setInitialPose(T0_);
-  std::atomic<bool> stop{false};
   TraceRecorder trace;
-  RealtimeOptions o;
-  o.status_interval_s = 0;
-  const RealtimeStats s = runRealtime(frames_, fe, o, stop, &trace);
+  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_, &trace);
   EXPECT_FALSE(s.stopped_early);
   EXPECT_EQ(s.counters.frames_in, frames_.size());
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in) << s.report;
   EXPECT_EQ(s.results.size(), s.counters.frames_processed);
-  EXPECT_EQ(fe.trajectory().size(), s.counters.frames_processed) << "no pose lost";
+  EXPECT_EQ(fe_.trajectory().size(), s.counters.frames_processed) << "no pose lost";
   EXPECT_GT(s.counters.frames_processed, 0u);
   EXPECT_GT(trace.size(), 0u);
   // Stamps of the processed frames only increase: the frontend never goes back.
@@ -53,14 +53,9 @@ TEST_F(RealtimeTest, EveryFrameIsProcessedOrCountedAsDropped) {
 }
 
 TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
-  Frontend fe(cam_, FrontendParams{});
-  fe.setInitialPose(T0_);
-  std::atomic<bool> stop{false};
-  RealtimeOptions o;
-  o.status_interval_s = 0;
-  o.burn_slice_ms = 200;  // four 50 ms periods: never fits
-  o.refine_workers = 2;
-  const RealtimeStats s = runRealtime(frames_, fe, o, stop);
+  options_.burn_slice_ms = 200;  // four 50 ms periods: never fits
+  options_.refine_workers = 2;
+  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
   EXPECT_EQ(s.burn_slices_run, 0u) << s.report;
   EXPECT_EQ(s.counters.slices_admitted, 0u);
   EXPECT_GT(s.counters.jobs_submitted, 0u);
@@ -68,34 +63,27 @@ TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
 }
 
 TEST_F(RealtimeTest, FrontendAppliesPoseCorrectionsToItsTrajectory) {
-  Frontend fe(cam_, FrontendParams{});
-  fe.setInitialPose(T0_);
-  for (int i = 0; i < 3; ++i) fe.process(frames_[static_cast<size_t>(i)]);
+  for (int i = 0; i < 3; ++i) fe_.process(frames_[static_cast<size_t>(i)]);
   PoseCorrection c{frames_[1].stamp_ns, Eigen::Isometry3d::Identity()};
   c.T_world_cam.translation() = Eigen::Vector3d(1, 2, 3);
-  EXPECT_TRUE(fe.applyPoseCorrection(c));
-  EXPECT_TRUE(fe.trajectory()[1].T_world_cam.translation().isApprox(Eigen::Vector3d(1, 2, 3)));
-  EXPECT_FALSE(fe.applyPoseCorrection({12345, Eigen::Isometry3d::Identity()})) << "no frame with that stamp";
-  EXPECT_EQ(fe.trajectory().size(), 3u);
+  EXPECT_TRUE(fe_.applyPoseCorrection(c));
+  EXPECT_TRUE(fe_.trajectory()[1].T_world_cam.translation().isApprox(Eigen::Vector3d(1, 2, 3)));
+  EXPECT_FALSE(fe_.applyPoseCorrection({12345, Eigen::Isometry3d::Identity()})) << "no frame with that stamp";
+  EXPECT_EQ(fe_.trajectory().size(), 3u);
 }
 
 TEST_F(RealtimeTest, StopEndsTheRunWithConsistentOutputs) {
-  Frontend fe(cam_, FrontendParams{});
-  fe.setInitialPose(T0_);
-  std::atomic<bool> stop{false};
-  RealtimeOptions o;
-  o.status_interval_s = 0;
-  o.fps = 5;  // 24 frames would take 4.8 s
+  options_.fps = 5;  // 24 frames would take 4.8 s
   std::thread stopper([&] {
     std::this_thread::sleep_for(std::chrono::milliseconds(700));
-    stop = true;  // as SIGINT/SIGTERM do
+    stop_ = true;  // as SIGINT/SIGTERM do
   });
-  const RealtimeStats s = runRealtime(frames_, fe, o, stop);
+  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
   stopper.join();
   EXPECT_TRUE(s.stopped_early);
   EXPECT_LT(s.counters.frames_in, frames_.size());
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
-  EXPECT_EQ(fe.trajectory().size(), s.counters.frames_processed);
+  EXPECT_EQ(fe_.trajectory().size(), s.counters.frames_processed);
 }
 
 }  // namespace

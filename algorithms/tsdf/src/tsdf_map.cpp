@@ -55,12 +55,6 @@ bool TsdfMap::voxel(const Eigen::Vector3i& g, Voxel& out) const {
 }
 
 namespace {
-// floor() for floats well inside the int range, without a libm call.
-inline int fastFloor(float x) {
-  const int i = static_cast<int>(x);
-  return i - (x < static_cast<float>(i));
-}
-
 // The 8 voxels around p (block and index of each) and the trilinear
 // fractions; false when one is missing or has too little weight.
 bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p, float min_weight,
@@ -69,20 +63,7 @@ bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p,
   const Eigen::Vector3f f = q.array().floor();
   const Eigen::Vector3i base = f.cast<int>();
   frac = q - f;
-  if ((base.x() & 7) < 7 && (base.y() & 7) < 7 && (base.z() & 7) < 7) {
-    // All 8 in one block (343 of 512 positions): one lookup, fixed offsets.
-    int i0 = 0;
-    const VoxelBlock* blk = cache.blockOfVoxel(base, i0);
-    if (blk == nullptr) return false;
-    for (int c = 0; c < 8; ++c) {
-      blocks[c] = blk;
-      index[c] = i0 + (c & 1) + ((c >> 1) & 1) * kBlockSide + ((c >> 2) & 1) * kBlockSide * kBlockSide;
-      const float w = blk->geo[index[c]].weight;
-      if (w < min_weight || w <= 0) return false;
-    }
-    return true;
-  }
-  for (int c = 0; c < 8; ++c) {
+  for (int c = 0; c < 8; ++c) {  // the cache makes repeated blocks cheap
     blocks[c] = cache.blockOfVoxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1), index[c]);
     if (blocks[c] == nullptr) return false;
     const float w = blocks[c]->geo[index[c]].weight;
@@ -101,7 +82,7 @@ bool BlockCache::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) 
   // four x-adjacent pairs and blended by successive lerps.
   const float qx = p.x() * map_->invVoxelSize() - 0.5f, qy = p.y() * map_->invVoxelSize() - 0.5f,
               qz = p.z() * map_->invVoxelSize() - 0.5f;
-  const int bx = fastFloor(qx), by = fastFloor(qy), bz = fastFloor(qz);
+  const int bx = floorToInt(qx), by = floorToInt(qy), bz = floorToInt(qz);
   if ((bx & 7) < 7 && (by & 7) < 7 && (bz & 7) < 7) {
     const VoxelBlock* blk = get(BlockKey(bx >> 3, by >> 3, bz >> 3));
     if (blk == nullptr) return false;

@@ -38,6 +38,16 @@ struct KeyframeMsg {
 
 }  // namespace
 
+void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t start_ns, int thread, int64_t frame) {
+  int64_t t = start_ns;
+  for (int s = 0; s < kStageCount; ++s) {
+    if (result.stage_ms[s] <= 0) continue;
+    const auto d = static_cast<int64_t>(result.stage_ms[s] * 1e6);
+    trace.add({stageName(s), "frontend", t, d, thread, frame, result.stamp_ns});
+    t += d;
+  }
+}
+
 RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& frontend, const RealtimeOptions& options,
                           const std::atomic<bool>& stop, TraceRecorder* trace, const std::function<void()>& heartbeat) {
   RealtimeStats stats;
@@ -122,21 +132,11 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       sched.frameStarted(start, arrival_ns[idx]);
       FrameResult r = frontend.process(frames[idx]);
       const int64_t end = now_ns();
-      double total = 0;
-      for (double ms : r.stage_ms) total += ms;
       sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
                           static_cast<double>(end - start) * 1e-6);
       latency_ms.push_back(static_cast<double>(end - arrival_ns[idx]) * 1e-6);
       frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
-      if (trace) {
-        int64_t t = start;
-        for (int s = 0; s < kStageCount; ++s) {
-          if (r.stage_ms[s] <= 0) continue;
-          const auto d = static_cast<int64_t>(r.stage_ms[s] * 1e6);
-          trace->add({stageName(s), "frontend", t, d, 2, static_cast<int64_t>(idx), frames[idx].stamp_ns});
-          t += d;
-        }
-      }
+      if (trace) traceFrameStages(*trace, r, start, 2, static_cast<int64_t>(idx));
       if (r.keyframe) {
         if (!keyframes.tryPush(KeyframeMsg{r.stamp_ns, r.T_world_cam})) keyframes_full.fetch_add(1);
         keyframes_pushed.fetch_add(1, std::memory_order_release);

@@ -91,13 +91,7 @@ bool Scheduler::frameFinished(int64_t now_ns, const std::array<double, 4>& stage
   // Pose-feedback effort follows the slack frames leave: down a level when
   // the last frame's slack cannot hold the current level, up when it holds
   // the next one with room to spare.
-  double feedback_full_ms = 0;
-  {
-    std::lock_guard<std::mutex> lock(job_mutex_);
-    for (const auto& k : job_costs_) {
-      if (k.kind == "feedback" && !k.model.empty()) feedback_full_ms = k.model.predict();
-    }
-  }
+  const double feedback_full_ms = feedback_full_ms_.load(std::memory_order_relaxed);
   const double slack = nsToMs(current_arrival_ns_ + period_ns_ - margin_ns_ - now_ns);
   const int max_e = std::max(0, params_.max_feedback_effort);
   int e = feedback_effort_.load(std::memory_order_relaxed);
@@ -159,14 +153,14 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
 
 void Scheduler::sliceFinished(const JobTicket& job, double ms) {
   std::lock_guard<std::mutex> lock(job_mutex_);
-  for (auto& k : job_costs_) {
-    if (k.kind == job.kind) {
-      k.model.add(ms);
-      return;
-    }
+  auto it = std::find_if(job_costs_.begin(), job_costs_.end(), [&](const JobKindCost& k) { return k.kind == job.kind; });
+  if (it == job_costs_.end()) {
+    job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames)))});
+    it = job_costs_.end() - 1;
   }
-  job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames)))});
-  job_costs_.back().model.add(ms);
+  it->model.add(ms);
+  // The frontend reads the feedback cost once per frame: published lock-free.
+  if (job.kind == "feedback") feedback_full_ms_.store(it->model.predict(), std::memory_order_relaxed);
 }
 
 void Scheduler::jobFinished(const JobTicket&) { jobs_completed_.fetch_add(1, std::memory_order_relaxed); }

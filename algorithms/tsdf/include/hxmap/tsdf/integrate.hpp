@@ -38,7 +38,8 @@ int integrationLevel(const TsdfMap& map, const PinholeCamera& camera);
 
 /// Pixel stride (at the integration level) at which allocateBand samples the depth image
 /// (TsdfParams::allocation_stride_px, or the automatic choice for 0).
-int allocationStride(const TsdfMap& map, const PinholeCamera& camera);
+/// `focal_px`: the smaller focal length, in pixels of that level.
+int allocationStride(const TsdfMap& map, double focal_px);
 
 /// Blocks whose voxels the observation can update; allocates missing ones.
 std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, size_t* newly_allocated = nullptr);

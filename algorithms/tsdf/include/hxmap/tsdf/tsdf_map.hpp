@@ -188,6 +188,10 @@ class BlockCache {
   Entry entries_[8];
 };
 
-inline int floorDiv(int a, int b) { return (a >= 0) ? a / b : -((-a + b - 1) / b); }
+/// floor() for floats well inside the int range, without a libm call.
+inline int floorToInt(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i));
+}
 
 }  // namespace hxmap::alg

@@ -59,6 +59,10 @@ struct RealtimeStats {
   std::vector<FrameResult> results;
 };
 
+/// Records a processed frame's stages in `trace`. They run back to back
+/// inside Frontend::process, so they are laid out from its start.
+void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t start_ns, int thread, int64_t frame);
+
 /// Plays `frames` (already loaded; stamps give the recorded rate) through
 /// the threads. `heartbeat` (optional) is called by the calling thread about
 /// every status interval while the run is healthy (service watchdog).

@@ -177,6 +177,7 @@ class Scheduler {
   // slice by background threads, never by the frontend's per-frame path).
   mutable std::mutex job_mutex_;
   std::vector<JobKindCost> job_costs_;
+  std::atomic<double> feedback_full_ms_{0.0};  ///< predicted "feedback" slice at full effort
 };
 
 }  // namespace hxmap::rt
