@@ -1,4 +1,5 @@
 #include "commands.hpp"
+#include "quality_output.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -152,7 +153,7 @@ int runCommand(const RunOptions& o) {
   }
 
   const ParallelFor parallel = makeParallelFor(c.runtime.threads);
-  FrontendParams fp{c.preprocess, c.tsdf, c.raycast, c.tracking};
+  FrontendParams fp{c.preprocess, c.tsdf, c.raycast, c.tracking, c.quality, c.quality_enabled};
   Frontend frontend(cam, fp, parallel);
 
   // Frames to process.
@@ -191,7 +192,8 @@ int runCommand(const RunOptions& o) {
     tracked += r.tracked;
     double sum = 0;
     for (int s = 0; s < kStageCount; ++s) {
-      stage_ms[s].push_back(r.stage_ms[s]);
+      // Quality runs on keyframes only: its row is per keyframe.
+      if (s != kQuality || r.keyframe) stage_ms[s].push_back(r.stage_ms[s]);
       sum += r.stage_ms[s];
     }
     total_ms.push_back(sum);
@@ -268,6 +270,13 @@ int runCommand(const RunOptions& o) {
                   r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),
                   r.T_world_cam.translation().z());
     if (!r.tracked) spdlog::warn("frame {} ({}): tracking lost: {}", frames[k], frame->stamp_ns, r.failure);
+    if (r.keyframe && !o.save_quality.empty()) {
+      if (auto s = writeKeyframeQuality(o.save_quality, frontend, r.keyframe_id); !s) {
+        spdlog::error("{}", s.message());
+        first_error = s.message();
+        break;
+      }
+    }
     const double sum = tally(r);
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
   }
@@ -298,7 +307,8 @@ int runCommand(const RunOptions& o) {
   summary += "timing, ms per frame    median      p90      max\n";
   for (int s = 0; s < kStageCount; ++s) {
     const auto p = percentiles(stage_ms[s]);
-    summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", stageName(s), p.median, p.p90, p.max);
+    summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", s == kQuality ? "quality (keyframes)" : stageName(s),
+                           p.median, p.p90, p.max);
   }
   const auto pt = percentiles(total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
@@ -327,6 +337,15 @@ int runCommand(const RunOptions& o) {
       const auto mp = meshParams(c.eval);
       const auto m = alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, parallel);
       summary += meshMetricsText(m, mp);
+    }
+  }
+  summary += qualityText(frontend);
+  if (!o.save_quality.empty()) {
+    if (auto s = writeQualityMaps(o.save_quality, frontend); !s) {
+      spdlog::error("{}", s.message());
+      exit_code = 1;
+    } else {
+      summary += fmt::format("quality: indicator images per keyframe, rois.ply and blocks.csv in {}\n", o.save_quality);
     }
   }
   summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
@@ -359,23 +378,29 @@ int synthCommand(const SynthOptions& o) {
   p.frames = o.frames > 0 ? o.frames : sc.frames;
   p.seed = static_cast<uint64_t>(o.seed >= 0 ? o.seed : sc.seed);
   p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
-  if (p.trajectory != "orbit" && p.trajectory != "sweep") {
-    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep", p.trajectory);
+  if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect") {
+    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect", p.trajectory);
     return 2;
   }
+  const std::string scene_name = o.scene.empty() ? sc.scene : o.scene;
+  if (scene_name != "room" && scene_name != "quality") {
+    spdlog::error("--scene: '{}' is not one of: room, quality", scene_name);
+    return 2;
+  }
+  const drv::SyntheticScene scene = scene_name == "quality" ? drv::SyntheticScene::qualityRoom() : drv::SyntheticScene::room();
   p.noise = sc.noise && !o.no_noise;
   p.noise_scale = sc.noise_scale;
   p.missing_blobs_per_frame = sc.missing_blobs_per_frame;
   Progress progress("rendering", static_cast<size_t>(p.frames));
-  const auto status = drv::writeSyntheticSequence(o.out_dir, drv::SyntheticScene::room(), p,
+  const auto status = drv::writeSyntheticSequence(o.out_dir, scene, p,
                                                   makeParallelFor(config->runtime.threads),
                                                   [&](int done, int) { progress.update(static_cast<size_t>(done)); });
   if (!status) {
     spdlog::error("{}", status.message());
     return 1;
   }
-  spdlog::info("wrote {} frames of the synthetic room (seed {}, {} trajectory, noise {}) to {}", p.frames, p.seed,
-               p.trajectory, p.noise ? "on" : "off", o.out_dir);
+  spdlog::info("wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}) to {}", p.frames,
+               scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", o.out_dir);
   return 0;
 }
 

@@ -17,6 +17,7 @@ struct RunOptions {
   bool realtime = false;  ///< play at the recorded rate through the runtime's threads
   double fps = 0;         ///< with realtime: playback rate (0 = recorded stamps)
   double burn_ms = 0;     ///< with realtime: inject CPU-burning refinement slices of this many ms
+  std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
 };
 int runCommand(const RunOptions& options);
 
@@ -25,6 +26,7 @@ struct SynthOptions {
   std::string config;
   int frames = -1, seed = -1;
   std::string trajectory;
+  std::string scene;
   bool no_noise = false;
 };
 int synthCommand(const SynthOptions& options);

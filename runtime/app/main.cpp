@@ -29,6 +29,8 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--burn-ms", run.burn_ms,
                       "with --realtime: inject a CPU-burning refinement job with slices of this many ms")
       ->check(CLI::Range(0.0, 10000.0));
+  run_cmd->add_option("--save-quality", run.save_quality,
+                      "folder for quality indicator images per keyframe, ROI boxes (rois.ply) and block scores");
   run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");
   run_cmd->add_flag("--no-mesh-eval", run.no_mesh_eval, "do not score the mesh against gt_mesh.ply");
 
@@ -38,7 +40,8 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--config", synth.config, "YAML configuration (synthetic section)");
   synth_cmd->add_option("--frames", synth.frames, "number of frames");
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
-  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit or sweep");
+  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep or inspect");
+  synth_cmd->add_option("--scene", synth.scene, "room (default) or quality (known-bad regions for quality validation)");
   synth_cmd->add_flag("--no-noise", synth.no_noise, "exact depth, no sensor model");
 
   std::string demo_out = "hxmap_demo", demo_config;

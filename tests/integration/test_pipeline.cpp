@@ -42,6 +42,25 @@ TEST_F(Pipeline, TracksNoisySyntheticSequence) {
   const auto ate = alg::computeAte(fe.trajectory(), traj_);
   EXPECT_LT(ate.rmse_m, 0.01) << "ATE RMSE (m)";
   EXPECT_GE(fe.keyframes(), 2u);
+
+  // Keyframes scored the map's regions and chose ROIs within the budget,
+  // each with the keyframes that observed it.
+  const auto& scores = fe.blockScores();
+  ASSERT_GT(scores.size(), 20u);
+  for (const auto& s : scores) {
+    EXPECT_GE(s.priority, 0.0f);
+    EXPECT_LE(s.priority, 1.0f + 1e-6f);
+  }
+  size_t chosen = 0;
+  for (const auto& roi : fe.rois()) {
+    chosen += roi.blocks.size();
+    EXPECT_FALSE(roi.keyframes.empty());
+    EXPECT_LT(roi.keyframes.back(), fe.keyframes());
+    EXPECT_TRUE(roi.box_world.contains(
+        (roi.blocks[0].cast<float>() + Eigen::Vector3f::Constant(0.5f)) * fe.map().blockSize()));
+  }
+  const auto& qp = FrontendParams{}.quality;
+  EXPECT_EQ(chosen, std::min<size_t>(qp.max_blocks, static_cast<size_t>(std::ceil(qp.top_fraction * scores.size()))));
 }
 
 TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {

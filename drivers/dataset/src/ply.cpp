@@ -52,6 +52,29 @@ Status writePly(const std::string& path, const alg::TriangleMesh& mesh) {
   return writeTextFile(path, out);
 }
 
+Status writePlyBoxes(const std::string& path, const std::vector<Eigen::AlignedBox3f>& boxes, const alg::Color3& color) {
+  std::string out = fmt::format(
+      "ply\nformat ascii 1.0\ncomment written by hxmap\nelement vertex {}\nproperty float x\nproperty float y\n"
+      "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nelement edge {}\n"
+      "property int vertex1\nproperty int vertex2\nend_header\n",
+      boxes.size() * 8, boxes.size() * 12);
+  for (const auto& b : boxes) {
+    for (int i = 0; i < 8; ++i) {
+      out += fmt::format("{} {} {} {} {} {}\n", (i & 1) ? b.max().x() : b.min().x(), (i & 2) ? b.max().y() : b.min().y(),
+                         (i & 4) ? b.max().z() : b.min().z(), color[0], color[1], color[2]);
+    }
+  }
+  for (size_t k = 0; k < boxes.size(); ++k) {
+    const size_t base = 8 * k;
+    for (int a = 0; a < 8; ++a) {
+      for (int bit : {1, 2, 4}) {
+        if (!(a & bit)) out += fmt::format("{} {}\n", base + a, base + (a | bit));
+      }
+    }
+  }
+  return writeTextFile(path, out);
+}
+
 namespace {
 
 enum class Type { kChar, kUChar, kShort, kUShort, kInt, kUInt, kFloat, kDouble, kInvalid };

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <random>
 
 #include <fmt/format.h>
@@ -50,6 +51,30 @@ SyntheticScene SyntheticScene::room() {
   capsule({-0.6f, 0.9f, 0.0f}, {-0.6f, 0.9f, 1.7f}, 0.005f, {30, 30, 30});     // 1 cm vertical rod
   capsule({-1.2f, 1.3f, 1.1f}, {0.6f, 1.3f, 1.1f}, 0.0075f, {180, 180, 190});  // 1.5 cm horizontal rod
   capsule({1.5f, 1.2f, 0.0f}, {1.1f, 0.9f, 1.4f}, 0.01f, {200, 170, 40});      // 2 cm slanted rod
+  return s;
+}
+
+SyntheticScene SyntheticScene::qualityRoom() {
+  SyntheticScene s;
+  using Bad = Primitive::Bad;
+  auto add = [&](Kind kind, Vector3f a, Vector3f b, float r, alg::Color3 col, int tex, float noise = 1.0f,
+                 Bad bad = Bad::kNo, float margin = 0.0f) {
+    s.primitives_.push_back({kind, a, b, r, col, tex, noise, bad, margin});
+  };
+  add(Kind::kRoom, {0, 0, 1.29f}, {3.5f, 1.5f, 1.31f}, 0, {215, 205, 190}, 1);
+  add(Kind::kBox, {0, 0, -0.05f}, {3.5f, 1.5f, 0.05f}, 0, {150, 110, 70}, 2);
+  // Thin rods 1.5, 2 and 3 cm thick, 0.4-0.6 m in front of the back wall.
+  add(Kind::kCapsule, {-0.8f, 1.0f, 0.0f}, {-0.8f, 1.0f, 1.8f}, 0.0075f, {30, 30, 30}, 0, 1.0f, Bad::kWhole);
+  add(Kind::kCapsule, {-0.45f, 0.9f, 0.0f}, {-0.45f, 0.9f, 1.8f}, 0.01f, {200, 170, 40}, 0, 1.0f, Bad::kWhole);
+  add(Kind::kCapsule, {1.5f, 1.05f, 0.0f}, {1.5f, 1.05f, 1.8f}, 0.015f, {180, 180, 190}, 0, 1.0f, Bad::kWhole);
+  // A board 0.8 m in front of the wall: its edges are occlusion boundaries.
+  add(Kind::kBox, {0.8f, 0.7f, 0.75f}, {0.25f, 0.02f, 0.75f}, 0, {60, 120, 200}, 0, 1.0f, Bad::kEdges);
+  // A poster on the wall where the sensor is 4x noisier (a dark, shiny
+  // material): sigma 3.5 cm at the 2.4 m it is seen from, so its noisy
+  // depth lands up to 7 cm (2 sigma) off the wall.
+  add(Kind::kBox, {-1.6f, 1.495f, 1.4f}, {0.3f, 0.005f, 0.3f}, 0, {120, 60, 90}, 0, 4.0f, Bad::kWhole, 0.07f);
+  // A shelf above eye height: its top is seen only while the camera rises.
+  add(Kind::kBox, {0.0f, 1.22f, 1.2f}, {0.5f, 0.25f, 0.015f}, 0, {170, 120, 80}, 0, 1.0f, Bad::kWhole);
   return s;
 }
 
@@ -154,6 +179,35 @@ float valueNoise(const Vector3f& p, uint32_t seed) {
 }
 
 }  // namespace
+
+float SyntheticScene::badDistance(const Vector3f& p, int* primitive) const {
+  float d = std::numeric_limits<float>::infinity();
+  for (int k = 0; k < static_cast<int>(primitives_.size()); ++k) {
+    const Primitive& pr = primitives_[k];
+    const float before = d;
+    if (pr.bad == Primitive::Bad::kWhole) {
+      d = std::min(d, std::max(0.0f, std::abs(primitiveSdf(pr, p)) - pr.bad_margin_m));
+    } else if (pr.bad == Primitive::Bad::kEdges && pr.kind == Kind::kBox) {
+      // The 12 edges, less those resting on the floor.
+      for (int axis = 0; axis < 3; ++axis) {
+        const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+        for (int su : {-1, 1}) {
+          for (int sv : {-1, 1}) {
+            Vector3f a = pr.a, b = pr.a;
+            a[u] = b[u] = pr.a[u] + su * pr.b[u];
+            a[v] = b[v] = pr.a[v] + sv * pr.b[v];
+            a[axis] -= pr.b[axis];
+            b[axis] += pr.b[axis];
+            if (a.z() <= 1e-3f && b.z() <= 1e-3f) continue;
+            d = std::min(d, (p - closestOnSegment(p, a, b)).norm());
+          }
+        }
+      }
+    }
+    if (primitive && d < before) *primitive = k;
+  }
+  return d;
+}
 
 float SyntheticScene::sdf(const Vector3f& p) const {
   float d = 1e9f;
@@ -342,7 +396,14 @@ Trajectory syntheticTrajectory(const SyntheticParams& params) {
   for (int i = 0; i < params.frames; ++i) {
     const double t = static_cast<double>(i) / params.fps;  // seconds
     Eigen::Vector3d eye, target;
-    if (params.trajectory == "sweep") {
+    if (params.trajectory == "inspect") {
+      // Along the back wall (x -1 -> 1 in 4 s, then back), eye 1 m high,
+      // rising to 1.6 m around t = 2 s to glance over the shelf.
+      const double x = -1.0 + 2.0 * (0.5 - 0.5 * std::cos(M_PI * t / 4.0));
+      const double rise = std::abs(t - 2.0) < 0.5 ? 0.5 + 0.5 * std::cos(M_PI * (t - 2.0) / 0.5) : 0.0;
+      eye = {x, -0.9 + 0.05 * std::sin(1.3 * t), 1.0 + 0.6 * rise};
+      target = {x + 0.3 * std::sin(0.7 * t), 1.5, eye.z() - 0.1};
+    } else if (params.trajectory == "sweep") {
       const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
       eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
       target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
@@ -372,6 +433,7 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
   out.rgb.create(cam.height, cam.width, CV_8UC3);
   out.depth_true.create(cam.height, cam.width, CV_32F);
   cv::Mat cosine(cam.height, cam.width, CV_32F);
+  cv::Mat noise_gain(cam.height, cam.width, CV_32F, cv::Scalar(1.0f));
   const Eigen::Isometry3f T = T_world_cam.cast<float>();
   const Vector3f origin = T.translation();
   parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
@@ -393,6 +455,7 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
         const float z = t / ray_cam.norm();
         out.depth_true.at<float>(v, u) = z;
         cosine.at<float>(v, u) = std::abs(n.dot(dir));
+        noise_gain.at<float>(v, u) = scene.primitives()[k].noise_scale;
         const alg::Color3 c = scene.color(p, n, k);
         px = cv::Vec3b(c[0], c[1], c[2]);
       }
@@ -416,7 +479,7 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
         const float zn = out.depth_true.at<float>(vv, uu);
         if (zn <= 0 || std::abs(zn - z) > params.edge_jump_ratio * z) invalid = true;
       }
-      const float sigma = static_cast<float>(params.noise_scale) * (0.0012f + 0.0019f * (z - 0.4f) * (z - 0.4f));
+      const float sigma = static_cast<float>(params.noise_scale) * noise_gain.at<float>(v, u) * (0.0012f + 0.0019f * (z - 0.4f) * (z - 0.4f));
       const float noisy = z + sigma * gauss(rng);
       // Disparity quantized to 1/8 pixel, as a Kinect v1.
       const float disparity = std::round(baseline_fx / std::max(noisy, 0.05f) * 8.0f) / 8.0f;

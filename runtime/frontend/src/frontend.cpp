@@ -23,7 +23,7 @@ class StageTimer {
 }  // namespace
 
 Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel)
-    : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf) {}
+    : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf), quality_(params.quality) {}
 
 FrameResult Frontend::process(const RgbdFrame& frame) {
   FrameResult r;
@@ -86,9 +86,14 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   // 5. Keyframes by motion and time.
   if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking)) {
     r.keyframe = true;
+    r.keyframe_id = static_cast<uint32_t>(keyframes_);
     T_last_kf_ = T;
     last_kf_ns_ = frame.stamp_ns;
     ++keyframes_;
+    if (params_.quality_enabled) {
+      StageTimer t(r.stage_ms[kQuality]);
+      scoreKeyframe(r);
+    }
   }
   initialized_ = true;
   trajectory_.push_back({frame.stamp_ns, T});
@@ -103,6 +108,32 @@ bool Frontend::applyPoseCorrection(const PoseCorrection& c) {
     return true;
   }
   return false;
+}
+
+void Frontend::scoreKeyframe(FrameResult& r) {
+  // The model view was raycast at this pose after the keyframe was fused,
+  // at the model level; the frame's level of the same size pairs with it.
+  const alg::ModelView& model = model_.front();
+  const alg::FrameLevel* level = nullptr;
+  for (const auto& l : last_frame_.levels) {
+    if (l.depth.size() == model.depth.size()) {
+      level = &l;
+      break;
+    }
+  }
+  if (!level) return;
+  alg::KeyframeView view{r.keyframe_id, T_last_.cast<float>(), level, &model};
+  if (!last_frame_.has_color) {
+    alg::FrameLevel no_color = *level;
+    no_color.intensity = cv::Mat();  // no photometric mismatch without color
+    view.frame = &no_color;
+    quality_.update(map_, view);
+  } else {
+    quality_.update(map_, view);
+  }
+  scores_ = quality_.score(map_.truncation());
+  rois_ = quality_.selectRois(scores_, map_.voxelSize());
+  r.rois = rois_.size();
 }
 
 void Frontend::renderModel(const alg::PreprocessedFrame& fused) {

@@ -27,7 +27,10 @@ struct SyntheticParams {
   int frames = 150;
   double fps = 30.0;
   uint64_t seed = 1;
-  std::string trajectory = "orbit";  ///< "orbit" (around the table) or "sweep" (along a wall)
+  /// "orbit" (around the table), "sweep" (along a wall) or "inspect" (along
+  /// the back wall and back, rising once to glance over a shelf; made for
+  /// SyntheticScene::qualityRoom).
+  std::string trajectory = "orbit";
   bool noise = true;                 ///< apply the sensor model (false: exact depth)
   double noise_scale = 1.0;          ///< multiplies the depth noise sigma
   int missing_blobs_per_frame = 0;   ///< elliptic holes in depth
@@ -44,6 +47,11 @@ struct Primitive {
   float radius = 0.0f;
   alg::Color3 color{200, 200, 200};
   int texture = 0;  ///< 0 plain with grain, 1 checker walls, 2 floor planks
+  float noise_scale = 1.0f;  ///< multiplies the depth noise on this primitive
+  /// Known-bad for the explicit map by construction (quality validation):
+  /// the whole primitive, or (boxes) only the edges off the floor.
+  enum class Bad { kNo, kWhole, kEdges } bad = Bad::kNo;
+  float bad_margin_m = 0.0f;  ///< the known-bad region extends this far (e.g. the band noisy depth lands in)
 };
 
 class SyntheticScene {
@@ -51,6 +59,16 @@ class SyntheticScene {
   /// The default room (4 x 3 x 2.6 m) with a table, a cabinet, a stool, a
   /// sphere and thin rods.
   static SyntheticScene room();
+  /// A wide room whose back wall and floor are clean, with the regions
+  /// fusion reconstructs badly placed by construction: thin rods (1.5-3 cm),
+  /// a free-standing board whose edges are occlusion boundaries, a wall patch
+  /// with 4x depth noise (its known-bad region includes the +-2 sigma band
+  /// its depth lands in), and a shelf whose top is only seen at a grazing
+  /// angle during one rise of the "inspect" trajectory.
+  static SyntheticScene qualityRoom();
+  /// Distance to the nearest known-bad region (Primitive::bad), or +inf;
+  /// `primitive` (optional) receives that region's primitive index.
+  float badDistance(const Eigen::Vector3f& p_world, int* primitive = nullptr) const;
 
   const std::vector<Primitive>& primitives() const { return primitives_; }
   /// Signed distance in meters (positive in free space).

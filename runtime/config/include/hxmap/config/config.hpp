@@ -8,6 +8,7 @@
 
 #include "hxmap/core/expected.hpp"
 #include "hxmap/preprocess/params.hpp"
+#include "hxmap/quality/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
 
@@ -36,7 +37,8 @@ struct DatasetConfig {
 struct SyntheticConfig {
   int frames = 150;
   int seed = 1;
-  std::string trajectory = "orbit";  ///< orbit | sweep
+  std::string scene = "room";         ///< room | quality
+  std::string trajectory = "orbit";  ///< orbit | sweep | inspect
   bool noise = true;
   double noise_scale = 1.0;
   int missing_blobs_per_frame = 0;
@@ -64,6 +66,8 @@ struct HxmapConfig {
   alg::RaycastParams raycast;
   alg::MeshParams mesh;
   alg::TrackingParams tracking;
+  bool quality_enabled = true;
+  alg::QualityParams quality;
   SyntheticConfig synthetic;
   EvalConfig eval;
   RuntimeConfig runtime;

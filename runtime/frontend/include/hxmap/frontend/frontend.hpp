@@ -9,6 +9,7 @@
 #include "hxmap/core/frame.hpp"
 #include "hxmap/core/parallel.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/quality/quality.hpp"
 #include "hxmap/tracking/icp.hpp"
 #include "hxmap/tsdf/patch.hpp"
 #include "hxmap/tsdf/raycast.hpp"
@@ -21,11 +22,14 @@ struct FrontendParams {
   alg::TsdfParams tsdf;
   alg::RaycastParams raycast;
   alg::TrackingParams tracking;
+  alg::QualityParams quality;
+  bool quality_enabled = true;  ///< score map regions on keyframes (paper 3.2)
 };
 
-enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kStageCount };
+/// kQuality runs on keyframes only (0 ms on other frames).
+enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kQuality, kStageCount };
 inline const char* stageName(int s) {
-  static const char* names[] = {"preprocess", "track", "integrate", "raycast"};
+  static const char* names[] = {"preprocess", "track", "integrate", "raycast", "quality"};
   return names[s];
 }
 
@@ -35,6 +39,8 @@ struct FrameResult {
   bool tracked = false;     ///< pose from ICP (or the first frame)
   bool integrated = false;  ///< the frame was fused into the map
   bool keyframe = false;
+  uint32_t keyframe_id = 0;   ///< when keyframe: its id (0, 1, ...)
+  size_t rois = 0;            ///< when keyframe: ROIs selected after scoring it
   std::string failure;      ///< why the frame was not tracked or not fused
   int inliers = 0;
   double rms_residual_m = 0;
@@ -76,8 +82,19 @@ class Frontend {
   size_t lostFrames() const { return lost_frames_; }
   size_t keyframes() const { return keyframes_; }
 
+  /// Quality of the map's regions (paper 3.2), updated on each keyframe.
+  const alg::QualityMap& quality() const { return quality_; }
+  /// Block scores and ROIs as of the last keyframe.
+  const std::vector<alg::BlockScore>& blockScores() const { return scores_; }
+  const std::vector<alg::Roi>& rois() const { return rois_; }
+  /// The last fused frame and its pose (the last keyframe right after a
+  /// keyframe), e.g. to draw the indicators over it.
+  const alg::PreprocessedFrame& lastFrame() const { return last_frame_; }
+  const Eigen::Isometry3d& lastPose() const { return T_last_; }
+
  private:
   void renderModel(const alg::PreprocessedFrame& fused);
+  void scoreKeyframe(FrameResult& r);
 
   alg::PinholeCamera camera_;
   FrontendParams params_;
@@ -93,6 +110,9 @@ class Frontend {
   int64_t last_kf_ns_ = 0;
   Trajectory trajectory_;
   size_t lost_frames_ = 0, keyframes_ = 0;
+  alg::QualityMap quality_;
+  std::vector<alg::BlockScore> scores_;
+  std::vector<alg::Roi> rois_;
 };
 
 }  // namespace hxmap::rt

@@ -1,0 +1,55 @@
+#pragma once
+
+namespace hxmap::alg {
+
+/// Quality-guided region selection (paper 3.2, eq 2-7). A region is one
+/// voxel block. Depth quantities inside an indicator are in units of the
+/// truncation distance mu and clamped to 1, so every term of eq 2-5 lies in
+/// [0, 1] and the weights within an indicator compare like with like.
+struct QualityParams {
+  /// Pixel stride at the model level (half resolution): 2 reads every 4th
+  /// pixel of a 640x480 keyframe (19200 samples).
+  int pixel_stride = 2;
+  /// A keyframe updates a block's indicators only from this many samples on.
+  int min_samples = 4;
+  /// Weight of the newest keyframe in the running normal novelty, boundary
+  /// share and mismatch of a block (exponential average over keyframes).
+  double smoothing = 0.5;
+
+  double alpha_coverage = 0.5;  ///< CGN (eq 2): share of newly covered (not yet consolidated) voxels
+  double alpha_normal = 0.5;    ///< CGN: normal novelty 1 - cos
+  double w_explicit = 0.5;      ///< UF (eq 3): sigma_TSDF
+  double w_implicit = 0.5;      ///< UF: sigma_Neural, where a neural field exists
+  double beta_depth_var = 0.5;  ///< OBG (eq 4): depth mismatch spread across viewpoints
+  double beta_boundary = 0.5;   ///< OBG: share of samples on occlusion boundaries
+  double gamma_photometric = 0.5;  ///< RM (eq 5): |I_input - I_render|, intensity in [0, 1]
+  double gamma_depth = 0.5;        ///< RM: |z_input - z_render|
+  /// A surface voxel counts as consolidated (no longer newly covered) from
+  /// this fused weight on (weights sum per-pixel confidences in [0, 1]).
+  double consolidated_weight = 4.0;
+  /// A keyframe flags a block as on an occlusion boundary (B_occ = 1) when
+  /// this share of its samples lies next to a depth jump (less: in proportion).
+  double boundary_full_share = 0.1;
+  /// A sample is on an occlusion boundary when a pixel within
+  /// boundary_radius_px (model level) is farther by more than this * z (the
+  /// near side of the jump: the occluder's edge, not its shadow).
+  double boundary_jump_ratio = 0.05;
+  int boundary_radius_px = 2;
+
+  double lambda_cgn = 0.25;  ///< priority S (eq 7)
+  double lambda_uf = 0.25;
+  double lambda_obg = 0.25;
+  double lambda_rm = 0.25;
+
+  /// Budget: the top share of scored blocks by S, at most max_blocks.
+  double top_fraction = 0.1;
+  int max_blocks = 512;
+  double min_priority = 0.0;  ///< blocks below are never chosen
+  /// ROIs: connected chosen blocks, cut into cubes of at most this many
+  /// blocks per side, grown by a margin, with the keyframes that saw them.
+  int roi_max_extent_blocks = 4;
+  int roi_margin_voxels = 2;
+  int roi_max_keyframes = 8;
+};
+
+}  // namespace hxmap::alg

@@ -1,0 +1,169 @@
+// Quality-guided region selection (paper 3.2): four indicators per voxel
+// block, updated per keyframe from the keyframe and the model rendered at
+// its pose after fusion, min-max normalized over the scored blocks (eq 6),
+// combined into a priority S (eq 7); the top blocks grouped into ROIs.
+//
+// DESIGN: every indicator is accumulated from one pass over a subsampled
+// keyframe plus one scan of the blocks that pass landed in, so a keyframe
+// touches only the blocks it observed and costs O(samples + blocks):
+// - CGN (eq 2): C_new is the share of the block's surface voxels (|sdf| <
+//   one voxel) that are covered but not yet consolidated (fused weight below
+//   consolidated_weight). DESIGN: the first version took the voxels new
+//   since the block was last scored; on the quality room that wiped a
+//   surface seen once (a shelf top seen at a grazing angle) as soon as a
+//   later keyframe saw the same block's other faces. Normal novelty is
+//   1 - |cos| between the keyframe's normal and the fused map's normal at
+//   the same pixel, taken after the keyframe is fused, so it measures what
+//   the voxel grid cannot represent (edges, rods, curvature below a voxel).
+// - UF (eq 3): sigma_TSDF is the pooled standard deviation of the SDF
+//   observations (each voxel's Welford statistics) of the voxels next to the
+//   surface (|sdf| < one voxel): farther voxels see the surface at
+//   view-dependent projective distances, which is not noise. sigma_Neural
+//   comes from the neural field of an ROI (setNeuralSigma); without it the
+//   weights are renormalized to sigma_TSDF alone.
+// - OBG (eq 4): per keyframe the mean signed mismatch z_input - z_render of
+//   the block's samples; D_var is its standard deviation across the
+//   keyframes that saw the block (a wall agrees from every view; a block on
+//   an occlusion edge shows foreground from some views and background from
+//   others). B_occ flags the block when at least boundary_full_share of a
+//   keyframe's samples there lie on the near side of a depth jump (the
+//   occluder's edge, not its shadow; less in proportion), averaged over
+//   keyframes: a plain share is diluted by the rest of a 16 cm block.
+// - RM (eq 5): running mean of |I_input - I_render| (intensity, the render's
+//   color sampled from the map) and |z_input - z_render| over the block's
+//   samples; a sample whose ray finds no surface in the map counts as a
+//   full-mu mismatch (thin structures fusion erased).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/quality/params.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::alg {
+
+enum Indicator { kCgn = 0, kUf, kObg, kRm, kIndicatorCount };
+const char* indicatorName(int indicator);  ///< "cgn", "uf", "obg", "rm"
+
+/// What a keyframe contributes: its preprocessed level (depth, camera-frame
+/// normals, intensity) and the model raycast at the same pose and pyramid
+/// level after the keyframe was fused.
+struct KeyframeView {
+  uint32_t id = 0;
+  Eigen::Isometry3f T_world_cam = Eigen::Isometry3f::Identity();
+  const FrameLevel* frame = nullptr;
+  const ModelView* model = nullptr;
+};
+
+/// Accumulated evidence of one block (raw, before normalization).
+struct BlockQuality {
+  // CGN
+  float coverage_new = 0;    ///< share of surface voxels not yet consolidated (last scoring)
+  float normal_novelty = 0;  ///< running mean of 1 - |cos|
+  uint16_t observed_voxels = 0;
+  // UF
+  float sigma_tsdf_m = 0;
+  float sigma_neural_m = -1;  ///< < 0: no neural field covers the block
+  // OBG: Welford statistics over keyframes of the mean signed mismatch
+  uint32_t views = 0;
+  float view_mean_m = 0, view_m2 = 0;
+  float boundary = 0;  ///< running share of samples on occlusion boundaries
+  // RM
+  float photometric = 0;     ///< running mean |I_input - I_render|
+  float depth_error_m = 0;   ///< running mean |z_input - z_render| (capped at mu)
+  // Keyframes that observed the block, most recent first, with sample counts.
+  static constexpr int kMaxKeyframes = 6;
+  std::array<uint32_t, kMaxKeyframes> keyframe_ids{};
+  std::array<uint16_t, kMaxKeyframes> keyframe_samples{};
+  uint32_t keyframe_count = 0;
+};
+
+using Indicators = std::array<float, kIndicatorCount>;
+
+/// Raw indicator values of a block (eq 2-5), each term in [0, 1].
+Indicators indicatorsOf(const BlockQuality& q, float truncation_m, const QualityParams& params);
+
+struct QualityUpdateStats {
+  size_t samples = 0;        ///< keyframe pixels with depth that landed in a block
+  size_t blocks_scored = 0;  ///< blocks whose indicators this keyframe updated
+};
+
+/// One block's scores over the candidate set.
+struct BlockScore {
+  BlockKey key;
+  Indicators raw{};
+  Indicators normalized{};  ///< eq 6, in [0, 1]
+  float priority = 0;       ///< S, eq 7
+};
+
+/// A region of interest for implicit refinement: connected chosen blocks.
+struct Roi {
+  std::vector<BlockKey> blocks;
+  Eigen::AlignedBox3f box_world;   ///< the blocks' extent grown by the margin
+  std::vector<uint32_t> keyframes; ///< the keyframes that observed it most, best first
+  float priority = 0;              ///< the highest S among its blocks
+};
+
+class QualityMap {
+ public:
+  explicit QualityMap(const QualityParams& params) : params_(params) {}
+
+  const QualityParams& params() const { return params_; }
+
+  /// Scores the blocks the keyframe observed (call after fusing it).
+  QualityUpdateStats update(const TsdfMap& map, const KeyframeView& keyframe);
+
+  /// sigma_Neural of a block from the neural field refining it (meters).
+  void setNeuralSigma(const BlockKey& key, float sigma_m);
+
+  /// Normalized indicators and priority of every scored block (eq 6-7),
+  /// highest priority first.
+  std::vector<BlockScore> score(float truncation_m) const;
+
+  /// The top blocks within the budget, grouped into ROIs (highest priority
+  /// first). `scores` as returned by score().
+  std::vector<Roi> selectRois(const std::vector<BlockScore>& scores, float voxel_size_m) const;
+
+  const BlockQuality* find(const BlockKey& key) const;
+  size_t size() const { return blocks_.size(); }
+  void clear() { blocks_.clear(); }
+
+ private:
+  static uint64_t pack(const BlockKey& k) {
+    return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
+           static_cast<uint64_t>(k.z() + (1 << 20));
+  }
+  static BlockKey unpack(uint64_t p) {
+    const int mask = (1 << 21) - 1;
+    return {static_cast<int>((p >> 42) & mask) - (1 << 20), static_cast<int>((p >> 21) & mask) - (1 << 20),
+            static_cast<int>(p & mask) - (1 << 20)};
+  }
+
+  QualityParams params_;
+  std::unordered_map<uint64_t, BlockQuality> blocks_;
+};
+
+/// Per pixel of `frame` (a pyramid level of a keyframe at T_world_cam), the
+/// value in [0, 1] of `indicator` (kIndicatorCount = priority S) of the block
+/// its depth lands in; -1 where no scored block. CV_32F at the level's size.
+cv::Mat indicatorImage(const std::vector<BlockScore>& scores, const FrameLevel& frame,
+                       const Eigen::Isometry3f& T_world_cam, float block_size_m, int indicator);
+
+/// `values` (from indicatorImage) as a heat map blended over `rgb` (CV_8UC3,
+/// any multiple of the values' size); pixels without a value stay gray.
+cv::Mat overlayHeatmap(const cv::Mat& rgb, const cv::Mat& values);
+
+/// Draws each ROI box's 12 edges into `image` (pinhole `camera` at
+/// T_world_cam; edges behind the camera are clipped).
+void drawRoiBoxes(cv::Mat& image, const std::vector<Roi>& rois, const PinholeCamera& camera,
+                  const Eigen::Isometry3f& T_world_cam);
+
+}  // namespace hxmap::alg
