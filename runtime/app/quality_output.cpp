@@ -48,10 +48,7 @@ Status writeQualityMaps(const std::string& dir, const Frontend& frontend) {
   if (ec) return Error{dir + ": cannot create the quality folder: " + ec.message()};
   std::vector<Eigen::AlignedBox3f> boxes;
   std::unordered_set<uint64_t> chosen;
-  auto pack = [](const alg::BlockKey& k) {
-    return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
-           static_cast<uint64_t>(k.z() + (1 << 20));
-  };
+  const auto pack = alg::packBlockKey;
   for (const auto& roi : frontend.rois()) {
     boxes.push_back(roi.box_world);
     for (const auto& k : roi.blocks) chosen.insert(pack(k));

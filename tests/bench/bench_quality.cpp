@@ -40,10 +40,7 @@ double median(std::vector<double> v) {
   const size_t n = v.size();
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
-uint64_t pack(const alg::BlockKey& k) {
-  return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
-         static_cast<uint64_t>(k.z() + (1 << 20));
-}
+uint64_t pack(const alg::BlockKey& k) { return alg::packBlockKey(k); }
 
 // Kind of known-bad region a block touches: -1 none, else the primitive index.
 int badKind(const drv::SyntheticScene& scene, const alg::BlockKey& key, float voxel_m) {

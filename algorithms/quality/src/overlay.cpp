@@ -10,19 +10,12 @@
 
 namespace hxmap::alg {
 
-namespace {
-uint64_t packKey(const BlockKey& k) {
-  return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
-         static_cast<uint64_t>(k.z() + (1 << 20));
-}
-}  // namespace
-
 cv::Mat indicatorImage(const std::vector<BlockScore>& scores, const FrameLevel& frame,
                        const Eigen::Isometry3f& T_world_cam, float block_size_m, int indicator) {
   std::unordered_map<uint64_t, float> value;
   value.reserve(scores.size());
   for (const BlockScore& s : scores) {
-    value[packKey(s.key)] = indicator >= 0 && indicator < kIndicatorCount ? s.normalized[indicator] : s.priority;
+    value[packBlockKey(s.key)] = indicator >= 0 && indicator < kIndicatorCount ? s.normalized[indicator] : s.priority;
   }
   // S is a weighted sum of normalized indicators; shown relative to its maximum.
   float scale = 1.0f;
@@ -39,7 +32,7 @@ cv::Mat indicatorImage(const std::vector<BlockScore>& scores, const FrameLevel& 
     for (int u = 0; u < frame.depth.cols; ++u) {
       if (!(d[u] > 0.0f) || !std::isfinite(d[u])) continue;
       const Eigen::Vector3f q = (T_world_cam * frame.camera.backproject(static_cast<float>(u), static_cast<float>(v), d[u])) * inv_bs;
-      auto it = value.find(packKey(BlockKey(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()))));
+      auto it = value.find(packBlockKey(BlockKey(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()))));
       if (it != value.end()) o[u] = std::clamp(it->second * scale, 0.0f, 1.0f);
     }
   }

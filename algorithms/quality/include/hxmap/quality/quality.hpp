@@ -137,15 +137,8 @@ class QualityMap {
   void clear() { blocks_.clear(); }
 
  private:
-  static uint64_t pack(const BlockKey& k) {
-    return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
-           static_cast<uint64_t>(k.z() + (1 << 20));
-  }
-  static BlockKey unpack(uint64_t p) {
-    const int mask = (1 << 21) - 1;
-    return {static_cast<int>((p >> 42) & mask) - (1 << 20), static_cast<int>((p >> 21) & mask) - (1 << 20),
-            static_cast<int>(p & mask) - (1 << 20)};
-  }
+  static uint64_t pack(const BlockKey& k) { return packBlockKey(k); }
+  static BlockKey unpack(uint64_t p) { return unpackBlockKey(p); }
 
   QualityParams params_;
   std::unordered_map<uint64_t, BlockQuality> blocks_;

@@ -65,6 +65,17 @@ struct Voxel {
 
 using BlockKey = Eigen::Vector3i;
 
+/// A block key as one integer (21 bits per axis), for hash maps and sets.
+inline uint64_t packBlockKey(const BlockKey& k) {
+  return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
+         static_cast<uint64_t>(k.z() + (1 << 20));
+}
+inline BlockKey unpackBlockKey(uint64_t p) {
+  const uint64_t mask = (1u << 21) - 1;
+  return {static_cast<int>((p >> 42) & mask) - (1 << 20), static_cast<int>((p >> 21) & mask) - (1 << 20),
+          static_cast<int>(p & mask) - (1 << 20)};
+}
+
 /// Memory in use, for reports.
 struct MapMemory {
   size_t blocks = 0;
@@ -134,10 +145,7 @@ class TsdfMap {
   void clear();
 
  private:
-  static uint64_t pack(const BlockKey& k) {
-    return (static_cast<uint64_t>(k.x() + (1 << 20)) << 42) | (static_cast<uint64_t>(k.y() + (1 << 20)) << 21) |
-           static_cast<uint64_t>(k.z() + (1 << 20));
-  }
+  static uint64_t pack(const BlockKey& k) { return packBlockKey(k); }
   static size_t slotOf(uint64_t packed, size_t mask) {
     uint64_t h = packed * 0x9E3779B97F4A7C15ULL;
     h ^= h >> 29;
