@@ -46,15 +46,12 @@ struct BlockSamples {
 // (The standard error of the fused value, sigma / sqrt(n), was measured
 // too: it ranks a far, much-seen clean wall with a noisy patch, 0.12 vs 0.12
 // normalized on the quality room, where sigma gives 0.19 vs 0.51.)
-void scanBlock(const VoxelBlock& block, float voxel_m, float consolidated_weight, int& observed, float& fresh_share,
-               float& sigma_m) {
-  observed = 0;
+void scanBlock(const VoxelBlock& block, float voxel_m, float consolidated_weight, float& fresh_share, float& sigma_m) {
   int surface = 0, fresh = 0;
   double m2 = 0, dof = 0;
   for (int i = 0; i < kBlockVoxels; ++i) {
     const VoxelGeometry& g = block.geo[i];
     if (!(g.weight > 0.0f)) continue;
-    ++observed;
     if (std::abs(g.sdf_m) >= voxel_m) continue;
     ++surface;
     fresh += g.weight < consolidated_weight;
@@ -168,12 +165,10 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
     const bool first = q.views == 0;
     const float inv_n = 1.0f / static_cast<float>(a.n);
 
-    int observed = 0;
     float fresh = 0, sigma = 0;
     const int32_t b = map.find(a.key);
-    if (b >= 0) scanBlock(map.block(b), voxel_m, static_cast<float>(params_.consolidated_weight), observed, fresh, sigma);
+    if (b >= 0) scanBlock(map.block(b), voxel_m, static_cast<float>(params_.consolidated_weight), fresh, sigma);
     q.coverage_new = fresh;
-    q.observed_voxels = static_cast<uint16_t>(observed);
     q.sigma_tsdf_m = sigma;
 
     if (a.novelty_n > 0) {

@@ -122,15 +122,9 @@ void Frontend::scoreKeyframe(FrameResult& r) {
     }
   }
   if (!level) return;
-  alg::KeyframeView view{r.keyframe_id, T_last_.cast<float>(), level, &model};
-  if (!last_frame_.has_color) {
-    alg::FrameLevel no_color = *level;
-    no_color.intensity = cv::Mat();  // no photometric mismatch without color
-    view.frame = &no_color;
-    quality_.update(map_, view);
-  } else {
-    quality_.update(map_, view);
-  }
+  alg::FrameLevel frame = *level;                  // headers only
+  if (!last_frame_.has_color) frame.intensity = cv::Mat();  // no photometric mismatch without color
+  quality_.update(map_, {r.keyframe_id, T_last_.cast<float>(), &frame, &model});
   scores_ = quality_.score(map_.truncation());
   rois_ = quality_.selectRois(scores_, map_.voxelSize());
   r.rois = rois_.size();

@@ -68,7 +68,6 @@ struct BlockQuality {
   // CGN
   float coverage_new = 0;    ///< share of surface voxels not yet consolidated (last scoring)
   float normal_novelty = 0;  ///< running mean of 1 - |cos|
-  uint16_t observed_voxels = 0;
   // UF
   float sigma_tsdf_m = 0;
   float sigma_neural_m = -1;  ///< < 0: no neural field covers the block
