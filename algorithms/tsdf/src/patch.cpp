@@ -20,7 +20,14 @@ PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
     VoxelGeometry& g = blk.geo[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)];
     const float s = std::clamp(e.sdf_m, -mu, mu);
     const float new_w = g.weight + e.weight;
-    g.sdf_m += (e.weight / new_w) * (s - g.sdf_m);
+    const float a = e.weight / new_w;
+    g.sdf_m += a * (s - g.sdf_m);
+    if (e.has_color) {
+      VoxelColor& c = blk.color[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)];
+      c.r = static_cast<uint8_t>(c.r + a * (static_cast<float>(e.rgb[0]) - c.r) + 0.5f);
+      c.g = static_cast<uint8_t>(c.g + a * (static_cast<float>(e.rgb[1]) - c.g) + 0.5f);
+      c.b = static_cast<uint8_t>(c.b + a * (static_cast<float>(e.rgb[2]) - c.b) + 0.5f);
+    }
     g.weight = std::min(new_w, max_w);
     ++stats.applied;
   }

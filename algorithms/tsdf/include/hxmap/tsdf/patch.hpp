@@ -1,11 +1,13 @@
 // Corrections to the map computed away from it (ROI refinement works on a
-// snapshot): per voxel a signed distance and the confidence to give it.
+// snapshot): per voxel a signed distance, optionally a color, and the
+// confidence to give them.
 // DESIGN: a patch is fused like an observation (weighted running average,
 // weight capped), not written over the voxel: frames fused since the
 // snapshot are kept, and applying patches commutes with fusing frames.
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -19,6 +21,8 @@ struct TsdfPatch {
     Eigen::Vector3i voxel;  ///< global voxel coordinates
     float sdf_m = 0;        ///< clamped to the truncation band when applied
     float weight = 0;       ///< confidence of the correction (> 0)
+    uint8_t rgb[3] = {0, 0, 0};
+    bool has_color = false;  ///< blend rgb into the voxel's color as well
   };
   std::vector<Entry> entries;
 };

@@ -1,0 +1,133 @@
+// A neural voxel field over one ROI (paper 3.3, eq 8-9): x -> (s, c).
+//
+//   F_geo(x)  coarse grid, one node per voxel center: TSDF signed distance
+//             (in units of mu) and normal, initialized from the map;
+//             fine grid, fine_per_voxel nodes per voxel: a signed distance
+//             detail below the voxel size, zero at start
+//   F_tex(x)  one node per voxel center: the map's color
+//   z = Phi_fuse(F_geo, F_tex) = softplus(W_f [F_geo; F_tex] + b_f)
+//   h = softplus(W_1 [z; gamma(x)] + b_1),  o = W_2 h + b_2
+//   s = mu (sdf_coarse + sdf_fine + o_0),   c = rgb_tex + o_1..3
+// with gamma(x) the local position in the box and its sin/cos octaves.
+//
+// DESIGN: the decoder's output layer starts at zero, so the untrained field
+// is exactly the TSDF (trilinear over voxel centers, as the raycaster
+// samples it) and its colors: training starts from the explicit map's
+// answer instead of from noise (the paper's informative priors), and a job
+// shed after a few iterations still writes back a map no worse than it was.
+// All parameters (grids and decoder) sit in one flat vector, so the
+// optimizer and the finite-difference tests see one thing; the grids are
+// updated lazily (only nodes a sample touched), which keeps an iteration
+// O(samples) however large the ROI.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "hxmap/implicit/params.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::alg {
+
+/// Dense layer Y = W X + b on a batch (one column per point); W is
+/// out x in, column-major, in a flat parameter vector.
+void denseForward(const float* W, const float* b, int out, int in, const Eigen::MatrixXf& X, Eigen::MatrixXf& Y);
+/// Accumulates dW and db, and sets dX (when not null).
+void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
+                   float* db, Eigen::MatrixXf* dX);
+/// softplus(x) = log(1 + e^x), elementwise; its derivative is sigmoid(x).
+Eigen::MatrixXf softplus(const Eigen::MatrixXf& A);
+/// dA = dZ * sigmoid(A).
+Eigen::MatrixXf softplusBackward(const Eigen::MatrixXf& A, const Eigen::MatrixXf& dZ);
+
+/// A regular grid of nodes with `channels` values each, trilinearly
+/// interpolated. Node (i, j, k) sits at origin + (i, j, k) * cell.
+struct GridLayout {
+  Eigen::Vector3f origin = Eigen::Vector3f::Zero();
+  float cell = 1;
+  Eigen::Vector3i nodes = Eigen::Vector3i::Ones();
+  int channels = 1;
+  size_t nodeCount() const { return static_cast<size_t>(nodes.x()) * nodes.y() * nodes.z(); }
+  size_t size() const { return nodeCount() * static_cast<size_t>(channels); }
+};
+
+/// The 8 nodes around a point and their trilinear weights (the point is
+/// clamped into the grid).
+struct Corners {
+  int32_t node[8];
+  float weight[8];
+};
+Corners locate(const GridLayout& grid, const Eigen::Vector3f& p);
+
+class NeuralField {
+ public:
+  /// Channels of the coarse grid: sdf / mu, normal (3), rgb in [0, 1] (3).
+  static constexpr int kCoarseChannels = 7;
+
+  NeuralField() = default;
+  /// Over the voxel centers voxel_min .. voxel_min + voxel_count - 1
+  /// (global voxel coordinates of `map`), initialized from `map` (usually a
+  /// snapshot of those blocks). Unobserved voxels start as free space (+mu).
+  NeuralField(const TsdfMap& map, const Eigen::Vector3i& voxel_min, const Eigen::Vector3i& voxel_count,
+              const ImplicitParams& params);
+
+  /// Where the field is defined (the voxel centers' bounding box).
+  const Eigen::AlignedBox3f& box() const { return box_; }
+  const Eigen::Vector3i& voxelMin() const { return voxel_min_; }
+  const Eigen::Vector3i& voxelCount() const { return voxel_count_; }
+  float voxelSize() const { return voxel_size_; }
+  float truncation() const { return mu_; }
+
+  std::vector<float>& parameters() { return params_; }
+  const std::vector<float>& parameters() const { return params_; }
+  /// Parameters [0, gridParameters()) are grid values, the rest the decoder.
+  size_t gridParameters() const { return coarse_.size() + fine_.size(); }
+  const GridLayout& coarseGrid() const { return coarse_; }
+  const GridLayout& fineGrid() const { return fine_; }
+  size_t fineOffset() const { return coarse_.size(); }
+  int inputWidth() const { return kCoarseChannels + 1; }
+  int encodingWidth() const { return 3 + 6 * frequencies_; }
+
+  /// What backward needs from forward.
+  struct Cache {
+    std::vector<Corners> coarse, fine;
+    Eigen::MatrixXf X;    ///< grid features (inputWidth x n)
+    Eigen::MatrixXf A0;   ///< fuse pre-activation
+    Eigen::MatrixXf Zin;  ///< [z; gamma(x)]
+    Eigen::MatrixXf A1;   ///< hidden pre-activation
+    Eigen::MatrixXf H;
+  };
+
+  /// s (meters) and c (rgb in [0, 1], unclamped) at each column of `points`.
+  /// `cache` (optional) keeps what backward needs.
+  void forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m, Eigen::Matrix3Xf* rgb, Cache* cache) const;
+
+  /// Adds dL/dparameters to `grad` (size parameters()) for the upstream
+  /// gradients dL/ds and dL/dc (d_rgb may be empty: no color loss), and
+  /// appends the grid nodes it touched to `touched` (duplicates possible;
+  /// coarse node n is n, fine node n is coarse.nodeCount() + n).
+  void backward(const Cache& cache, const Eigen::VectorXf& d_sdf, const Eigen::Matrix3Xf& d_rgb,
+                std::vector<float>& grad, std::vector<int32_t>* touched) const;
+
+  /// Bytes of parameters (the optimizer keeps three more copies).
+  size_t parameterBytes() const { return params_.size() * sizeof(float); }
+
+ private:
+  void initDecoder(uint64_t seed);
+  void encode(const Eigen::Vector3f& p, float* out) const;
+
+  Eigen::Vector3i voxel_min_ = Eigen::Vector3i::Zero(), voxel_count_ = Eigen::Vector3i::Ones();
+  float voxel_size_ = 0.02f, mu_ = 0.08f;
+  Eigen::AlignedBox3f box_;
+  Eigen::Vector3f center_ = Eigen::Vector3f::Zero(), inv_half_extent_ = Eigen::Vector3f::Ones();
+  GridLayout coarse_, fine_;
+  int fuse_ = 16, hidden_ = 32, frequencies_ = 2;
+  // Offsets of the decoder's tensors in params_.
+  size_t wf_ = 0, bf_ = 0, w1_ = 0, b1_ = 0, w2_ = 0, b2_ = 0;
+  std::vector<float> params_;
+};
+
+}  // namespace hxmap::alg

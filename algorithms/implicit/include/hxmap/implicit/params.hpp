@@ -1,0 +1,57 @@
+#pragma once
+
+#include <cstdint>
+
+namespace hxmap::alg {
+
+/// Implicit local refinement of one ROI (paper 3.3, eq 8-11). Lengths are in
+/// voxels of the map unless the name says otherwise.
+struct ImplicitParams {
+  // Field (eq 8-9). F_geo has two scales: one node per voxel (the TSDF's
+  // signed distance and normal) and fine_per_voxel nodes per voxel (a signed
+  // distance detail, zero at start). F_tex has one node per voxel (color).
+  int fine_per_voxel = 2;
+  int fuse_width = 16;          ///< Phi_fuse output features
+  int hidden_width = 32;        ///< decoder hidden layer
+  int encoding_frequencies = 2; ///< sin/cos octaves of the local position
+  uint64_t seed = 1;            ///< initial weights and ray sampling
+
+  // Rendering (confined to the ROI box).
+  int rays_per_iteration = 256;
+  int samples_per_ray = 16;
+  double sample_band_voxels = 1.5;  ///< samples within this of the surface (and of the observed depth)
+  double sharpness_voxels = 0.2;    ///< SDF-to-opacity logistic scale (NeuS s^-1)
+  int sphere_trace_steps = 24;
+  int max_rays = 20000;             ///< candidate rays kept from the ROI's keyframes
+  int pixel_stride = 1;             ///< candidate pixels at the keyframe level
+
+  // Loss (eq 10).
+  double lambda_photo = 0.2;
+  double lambda_depth = 1.0;
+  double lambda_normal = 0.05;
+  double lambda_eikonal = 0.05;
+  double depth_huber_voxels = 0.5;  ///< depth residuals in voxels, Huber beyond this
+  double photo_huber = 0.1;         ///< color residuals (in [0, 1]), Huber beyond this
+  int regularizer_points = 128;     ///< points per iteration for the normal and eikonal terms
+
+  // Optimizer (Adam, lazy on the grids: only entries a sample touched move).
+  double learning_rate_grid = 0.02;
+  double learning_rate_mlp = 0.005;
+  int iterations = 150;             ///< cap per job
+  double time_budget_ms = 1500.0;   ///< cap per job (cooperative: checked between slices)
+  int slice_iterations = 5;         ///< iterations between scheduler checks
+  /// Early stop: the smoothed loss improved by less than this share over
+  /// the last `patience` iterations.
+  double convergence_rel = 0.002;
+  int patience = 25;
+
+  // Write-back (eq 11).
+  /// A refined voxel is fused with this many times the weight it had in the
+  /// snapshot (so it takes ratio / (1 + ratio) of the refined value).
+  double writeback_weight_ratio = 4.0;
+  /// The weight falls linearly to 0 over this many voxels at the ROI border
+  /// (no seam with the unrefined map around it).
+  double border_blend_voxels = 2.0;
+};
+
+}  // namespace hxmap::alg

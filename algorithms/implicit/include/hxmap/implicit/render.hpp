@@ -1,0 +1,102 @@
+// Rendering a neural field along keyframe rays, confined to its box, and
+// the training loss (paper 3.3, eq 10).
+//
+// Per ray: sphere tracing finds the field's first zero crossing; samples
+// are placed around it and around the observed depth (both, when they
+// disagree: the field must be able to grow a surface fusion erased and to
+// clear one that is not there); opacities come from the signed distances by
+// the NeuS rule alpha_i = max(0, 1 - Phi(s_{i+1} / b) / Phi(s_i / b)) with
+// Phi the logistic function (unbiased for planar surfaces at any incidence);
+// depth and color are alpha-composited. Rendered depth counts transmittance
+// left after the last sample as a hit at the far end of the samples, so a
+// ray whose samples cross no surface still pulls opacity towards the
+// observed depth.
+//
+// Loss = lambda_p photo + lambda_d depth + lambda_n normal + lambda_e eikonal:
+// Huber on color and on depth (in voxels); normal consistency 1 - cos
+// between the field's gradient and the keyframe's measured normal at the
+// traced surface; eikonal (|grad s| - 1)^2. Gradients of s in space are
+// central differences (half a voxel), so the regularizers need forward
+// values only and backpropagate like any other sample.
+//
+// DESIGN: "explicit normals" are taken from the keyframe's depth map
+// (the normals the frontend computes for tracking), not from the TSDF: the
+// TSDF's normals are what fusion got wrong at edges and on thin parts, the
+// places refinement is for.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "hxmap/geometry/camera.hpp"
+#include "hxmap/implicit/neural_field.hpp"
+#include "hxmap/implicit/params.hpp"
+
+namespace hxmap::alg {
+
+/// A keyframe's images at the resolution refinement uses.
+struct KeyframeImages {
+  uint32_t id = 0;
+  PinholeCamera camera;
+  Eigen::Isometry3f T_world_cam = Eigen::Isometry3f::Identity();
+  cv::Mat depth;   ///< CV_32F meters, 0 = none
+  cv::Mat rgb;     ///< CV_8UC3 (same channel order as the map's colors), or empty
+  cv::Mat normal;  ///< CV_32FC3 camera-frame unit normals (0 = none), or empty
+};
+
+/// A keyframe pixel whose observed surface lies in the field's box.
+struct TrainingRay {
+  Eigen::Vector3f origin = Eigen::Vector3f::Zero();
+  Eigen::Vector3f dir = Eigen::Vector3f::UnitZ();  ///< unit
+  float t_in = 0, t_out = 0;  ///< the ray inside the box
+  float t_obs = 0;            ///< observed surface distance along the ray
+  Eigen::Vector3f rgb = Eigen::Vector3f::Zero();
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();  ///< world frame, 0 = unknown
+  bool has_color = false;
+  uint32_t keyframe = 0;
+};
+
+/// Rays of the keyframes' pixels (every pixel_stride-th) whose depth lands
+/// in `box`, at most params.max_rays (an even spread when more).
+std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframes, const Eigen::AlignedBox3f& box,
+                                     const ImplicitParams& params);
+
+/// The first zero crossing of the field along each ray in [t_in, t_out]
+/// (sphere tracing, a sign change refined linearly); -1 when none, or when
+/// the ray enters the box inside the surface.
+std::vector<float> sphereTrace(const NeuralField& field, const std::vector<TrainingRay>& rays,
+                               const std::vector<int32_t>& which, int max_steps);
+
+/// The samples of one iteration.
+struct RenderBatch {
+  std::vector<int32_t> rays;  ///< indices into the candidate rays
+  int samples = 0;            ///< per ray
+  std::vector<float> t;       ///< rays.size() * samples, ascending per ray
+  std::vector<Eigen::Vector3f> reg_points;   ///< normal / eikonal points
+  std::vector<Eigen::Vector3f> reg_normals;  ///< measured normal at each, 0 = eikonal only
+};
+
+/// `which` rays (all candidate rays when empty: rays_per_iteration drawn at
+/// random), traced and sampled; `jitter` stratifies the samples randomly
+/// (training), else at stratum centers (evaluation). `rng` advances.
+RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>& rays, std::vector<int32_t> which,
+                        const ImplicitParams& params, bool jitter, uint64_t& rng);
+
+struct LossTerms {
+  double photo = 0, depth = 0, normal = 0, eikonal = 0;
+  double total = 0;  ///< weighted (eq 10)
+  int rays = 0, photo_rays = 0, normal_points = 0, reg_points = 0;
+};
+
+/// Renders the batch and evaluates the loss. With `grad` (size of the
+/// field's parameters), adds dL/dparameters and lists touched grid nodes in
+/// `touched`. `rendered_t` (optional) receives each ray's composited depth
+/// (distance along the ray).
+LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
+                       const ImplicitParams& params, std::vector<float>* grad = nullptr,
+                       std::vector<int32_t>* touched = nullptr, std::vector<float>* rendered_t = nullptr);
+
+}  // namespace hxmap::alg

@@ -1,0 +1,179 @@
+#include "hxmap/implicit/refine.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+
+namespace hxmap::alg {
+
+RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
+                       const std::vector<KeyframeImages>& keyframes, const ImplicitParams& params)
+    : params_(params), rng_(params.seed * 0x9E3779B97F4A7C15ULL + 7) {
+  const float vs = map.voxelSize();
+  const Eigen::Vector3i vmin = map.voxelOf(box_world.min() + Eigen::Vector3f::Constant(0.5f * vs));
+  const Eigen::Vector3i vmax = map.voxelOf(box_world.max() - Eigen::Vector3f::Constant(0.5f * vs));
+  const Eigen::Vector3i count = (vmax - vmin + Eigen::Vector3i::Ones()).cwiseMax(2);
+  field_ = NeuralField(map, vmin, count, params_);
+  rays_ = collectRays(keyframes, field_.box(), params_);
+
+  snapshot_weight_.assign(static_cast<size_t>(count.x()) * count.y() * count.z(), 0.0f);
+  for (int z = 0; z < count.z(); ++z) {
+    for (int y = 0; y < count.y(); ++y) {
+      for (int x = 0; x < count.x(); ++x) {
+        Voxel v;
+        if (map.voxel(vmin + Eigen::Vector3i(x, y, z), v)) {
+          snapshot_weight_[(static_cast<size_t>(z) * count.y() + y) * count.x() + x] = v.weight;
+        }
+      }
+    }
+  }
+  const size_t n_eval = std::min<size_t>(rays_.size(), 1024);
+  for (size_t i = 0; i < n_eval; ++i) eval_rays_.push_back(static_cast<int32_t>(i * rays_.size() / n_eval));
+
+  const size_t np = field_.parameters().size();
+  grad_.assign(np, 0.0f);
+  m_.assign(np, 0.0f);
+  v_.assign(np, 0.0f);
+  node_stamp_.assign(field_.coarseGrid().nodeCount() + field_.fineGrid().nodeCount(), 0);
+  stats_.rays = rays_.size();
+  stats_.parameters = np;
+  stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) +
+                        rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * sizeof(float);
+  stats_.depth_l1_before_m = evalDepthL1(nullptr);
+  stats_.depth_l1_after_m = stats_.depth_l1_before_m;
+  finished_ = rays_.empty();
+}
+
+double RoiRefiner::evalDepthL1(std::vector<float>* per_ray) const {
+  if (eval_rays_.empty()) return 0.0;
+  ImplicitParams p = params_;
+  p.regularizer_points = 0;
+  uint64_t rng = 1;
+  const RenderBatch b = sampleBatch(field_, rays_, eval_rays_, p, false, rng);
+  std::vector<float> rendered;
+  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendered);
+  double sum = 0;
+  for (size_t i = 0; i < b.rays.size(); ++i) sum += std::abs(rendered[i] - rays_[static_cast<size_t>(b.rays[i])].t_obs);
+  if (per_ray) *per_ray = std::move(rendered);
+  return sum / static_cast<double>(b.rays.size());
+}
+
+bool RoiRefiner::iterate(int n) {
+  constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-8f;
+  std::vector<float>& P = field_.parameters();
+  const size_t grid_end = field_.gridParameters();
+  const size_t coarse_nodes = field_.coarseGrid().nodeCount();
+  const int cc = NeuralField::kCoarseChannels;
+  for (int it = 0; it < n && !finished_; ++it) {
+    const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_);
+    touched_.clear();
+    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_);
+    if (stats_.iterations == 0) stats_.first = L;
+    stats_.last = L;
+    const int t = ++stats_.iterations;
+    const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(t)), c2 = 1.0f - std::pow(kBeta2, static_cast<float>(t));
+    auto adam = [&](size_t i, float lr) {
+      const float g = grad_[i];
+      m_[i] = kBeta1 * m_[i] + (1.0f - kBeta1) * g;
+      v_[i] = kBeta2 * v_[i] + (1.0f - kBeta2) * g * g;
+      P[i] -= lr * (m_[i] / c1) / (std::sqrt(v_[i] / c2) + kEps);
+      grad_[i] = 0.0f;
+    };
+    const auto lr_grid = static_cast<float>(params_.learning_rate_grid);
+    const auto lr_mlp = static_cast<float>(params_.learning_rate_mlp);
+    for (int32_t node : touched_) {  // lazy: only the grid nodes this batch touched
+      if (node_stamp_[static_cast<size_t>(node)] == static_cast<uint32_t>(t)) continue;
+      node_stamp_[static_cast<size_t>(node)] = static_cast<uint32_t>(t);
+      if (static_cast<size_t>(node) < coarse_nodes) {
+        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * cc + ch, lr_grid);
+      } else {
+        adam(field_.fineOffset() + (static_cast<size_t>(node) - coarse_nodes), lr_grid);
+      }
+    }
+    for (size_t i = grid_end; i < P.size(); ++i) adam(i, lr_mlp);
+
+    const double prev = smoothed_loss_.empty() ? L.total : smoothed_loss_.back();
+    smoothed_loss_.push_back(smoothed_loss_.empty() ? L.total : 0.9 * prev + 0.1 * L.total);
+    const auto k = static_cast<size_t>(std::max(1, params_.patience));
+    if (smoothed_loss_.size() > k &&
+        smoothed_loss_.back() > smoothed_loss_[smoothed_loss_.size() - 1 - k] * (1.0 - params_.convergence_rel)) {
+      stats_.converged = true;
+      finished_ = true;
+    }
+    if (t >= params_.iterations) finished_ = true;
+  }
+  return !finished_;
+}
+
+RefineResult RoiRefiner::result() const {
+  RefineResult out;
+  out.stats = stats_;
+  std::vector<float> rendered;
+  out.stats.depth_l1_after_m = evalDepthL1(&rendered);
+
+  // sigma_Neural per block, from the rays' depth errors.
+  const float vs = field_.voxelSize(), block = vs * kBlockSide;
+  std::unordered_map<uint64_t, std::pair<double, int>> per_block;
+  for (size_t i = 0; i < rendered.size(); ++i) {
+    const TrainingRay& r = rays_[static_cast<size_t>(eval_rays_[i])];
+    const Eigen::Vector3f p = r.origin + r.t_obs * r.dir;
+    const BlockKey key(floorToInt(p.x() / block), floorToInt(p.y() / block), floorToInt(p.z() / block));
+    auto& acc = per_block[packBlockKey(key)];
+    const double e = rendered[i] - r.t_obs;
+    acc.first += e * e;
+    ++acc.second;
+  }
+  for (const auto& [k, acc] : per_block) {
+    out.neural_sigma.emplace_back(unpackBlockKey(k), static_cast<float>(std::sqrt(acc.first / acc.second)));
+  }
+  std::sort(out.neural_sigma.begin(), out.neural_sigma.end(), [](const auto& a, const auto& b) {
+    return packBlockKey(a.first) < packBlockKey(b.first);
+  });
+
+  // Write-back (eq 11) of the voxels the snapshot had observed.
+  const Eigen::Vector3i n = field_.voxelCount(), vmin = field_.voxelMin();
+  const float mu = field_.truncation();
+  const float ramp = static_cast<float>(std::max(1e-3, params_.border_blend_voxels));
+  const auto ratio = static_cast<float>(params_.writeback_weight_ratio);
+  std::vector<Eigen::Vector3i> voxels;
+  std::vector<float> weights;
+  for (int z = 0; z < n.z(); ++z) {
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x) {
+        const float w0 = snapshot_weight_[(static_cast<size_t>(z) * n.y() + y) * n.x() + x];
+        if (!(w0 > 0.0f)) continue;
+        const int d = std::min({x, y, z, n.x() - 1 - x, n.y() - 1 - y, n.z() - 1 - z});
+        const float blend = std::min(1.0f, static_cast<float>(d) / ramp);
+        if (blend <= 0.0f) continue;
+        voxels.push_back(vmin + Eigen::Vector3i(x, y, z));
+        weights.push_back(ratio * w0 * blend);
+      }
+    }
+  }
+  constexpr size_t kChunk = 4096;
+  out.patch.entries.reserve(voxels.size());
+  for (size_t c0 = 0; c0 < voxels.size(); c0 += kChunk) {
+    const size_t c1 = std::min(voxels.size(), c0 + kChunk);
+    Eigen::Matrix3Xf pts(3, static_cast<Eigen::Index>(c1 - c0));
+    for (size_t i = c0; i < c1; ++i) {
+      pts.col(static_cast<Eigen::Index>(i - c0)) = (voxels[i].cast<float>() + Eigen::Vector3f::Constant(0.5f)) * vs;
+    }
+    Eigen::VectorXf s;
+    Eigen::Matrix3Xf rgb;
+    field_.forward(pts, s, &rgb, nullptr);
+    for (size_t i = c0; i < c1; ++i) {
+      const auto j = static_cast<Eigen::Index>(i - c0);
+      TsdfPatch::Entry e;
+      e.voxel = voxels[i];
+      e.sdf_m = std::clamp(s[j], -mu, mu);
+      e.weight = weights[i];
+      for (int a = 0; a < 3; ++a) e.rgb[a] = static_cast<uint8_t>(std::clamp(rgb(a, j), 0.0f, 1.0f) * 255.0f + 0.5f);
+      e.has_color = true;
+      out.patch.entries.push_back(e);
+    }
+  }
+  out.stats.patch_entries = out.patch.entries.size();
+  return out;
+}
+
+}  // namespace hxmap::alg
