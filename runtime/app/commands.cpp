@@ -72,6 +72,43 @@ std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsPar
   return out;
 }
 
+FrontendParams frontendParams(const HxmapConfig& c) {
+  FrontendParams fp;
+  fp.preprocess = c.preprocess;
+  fp.tsdf = c.tsdf;
+  fp.raycast = c.raycast;
+  fp.tracking = c.tracking;
+  fp.quality = c.quality;
+  fp.quality_enabled = c.quality_enabled;
+  fp.implicit = c.refine.implicit;
+  fp.refine_enabled = c.refine.enabled && c.quality_enabled;
+  fp.max_jobs_per_keyframe = c.refine.max_jobs_per_keyframe;
+  fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
+  fp.keyframe_images = c.refine.keyframe_images;
+  fp.max_pending_jobs = c.refine.max_pending_jobs;
+  return fp;
+}
+
+/// What the refinement jobs of a run did, for the summary.
+struct RefineTally {
+  std::vector<double> job_ms, iteration_ms, setup_ms;
+  size_t jobs = 0, converged = 0, out_of_time = 0, voxels = 0;
+  double l1_before = 0, l1_after = 0, memory_mb_max = 0;
+  void add(const RefineOutcome& o) {
+    const auto& st = o.result.stats;
+    ++jobs;
+    converged += st.converged;
+    out_of_time += o.out_of_time;
+    voxels += st.patch_entries;
+    job_ms.push_back(o.setup_ms + o.train_ms + o.result_ms);
+    setup_ms.push_back(o.setup_ms);
+    if (st.iterations > 0) iteration_ms.push_back(o.train_ms / st.iterations);
+    l1_before += st.depth_l1_before_m;
+    l1_after += st.depth_l1_after_m;
+    memory_mb_max = std::max(memory_mb_max, static_cast<double>(st.memory_bytes) / (1 << 20));
+  }
+};
+
 alg::MeshMetricsParams meshParams(const EvalConfig& e) {
   alg::MeshMetricsParams p;
   p.samples = e.mesh_samples;
@@ -153,7 +190,7 @@ int runCommand(const RunOptions& o) {
   }
 
   const ParallelFor parallel = makeParallelFor(c.runtime.threads);
-  FrontendParams fp{c.preprocess, c.tsdf, c.raycast, c.tracking, c.quality, c.quality_enabled};
+  FrontendParams fp = frontendParams(c);
   Frontend frontend(cam, fp, parallel);
 
   // Frames to process.
@@ -179,6 +216,7 @@ int runCommand(const RunOptions& o) {
   std::vector<double> total_ms;
   size_t bad_frames = 0, tracked = 0;
   std::string first_error, realtime_report;
+  RefineTally refine;
   bool stopped = false;
   StopSignals signals;
   const auto t_start = std::chrono::steady_clock::now();
@@ -277,6 +315,13 @@ int runCommand(const RunOptions& o) {
         break;
       }
     }
+    // Offline, ROI jobs run to their end right after the keyframe that made
+    // them (deterministic; --realtime runs them in background workers).
+    for (const RefineJob& job : frontend.takeRefineJobs()) {
+      const RefineOutcome outcome = runRefineJob(job, fp.implicit);
+      frontend.applyRefinement(outcome);
+      refine.add(outcome);
+    }
     const double sum = tally(r);
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
   }
@@ -340,6 +385,18 @@ int runCommand(const RunOptions& o) {
     }
   }
   summary += qualityText(frontend);
+  if (refine.jobs > 0) {
+    const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms), ps = percentiles(refine.setup_ms);
+    const double n = static_cast<double>(refine.jobs);
+    summary += fmt::format(
+        "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back\n"
+        "  per job median {:.0f} ms (setup {:.1f} ms), per iteration median {:.2f} ms, memory per ROI up to {:.1f} MiB\n"
+        "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
+        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, pj.median, ps.median, pi.median,
+        refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+  } else if (frontend.refineJobsMade() > 0) {
+    summary += fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade());
+  }
   if (!o.save_quality.empty()) {
     if (auto s = writeQualityMaps(o.save_quality, frontend); !s) {
       spdlog::error("{}", s.message());

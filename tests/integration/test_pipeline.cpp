@@ -63,6 +63,61 @@ TEST_F(Pipeline, TracksNoisySyntheticSequence) {
   EXPECT_EQ(chosen, std::min<size_t>(qp.max_blocks, static_cast<size_t>(std::ceil(qp.top_fraction * scores.size()))));
 }
 
+TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirBox) {
+  FrontendParams p;
+  p.implicit.iterations = 20;
+  Frontend fe(kCam, p);
+  fe.setInitialPose(traj_[0].T_world_cam);
+  std::vector<RefineJob> jobs;
+  for (int i = 0; i < sp_.frames; ++i) {
+    fe.process(frame(i));
+    for (auto& j : fe.takeRefineJobs()) jobs.push_back(std::move(j));
+  }
+  ASSERT_FALSE(jobs.empty());
+  EXPECT_EQ(jobs.size(), fe.refineJobsMade());
+  EXPECT_LE(jobs.size(), static_cast<size_t>(p.max_jobs_per_keyframe) * fe.keyframes());
+  for (const auto& j : jobs) {
+    ASSERT_TRUE(j.snapshot);
+    EXPECT_GT(j.snapshot->blockCount(), 0u);
+    EXPECT_LE(j.snapshot->blockCount(), fe.map().blockCount());
+    ASSERT_FALSE(j.keyframes.empty());
+    EXPECT_LE(j.keyframes.size(), j.roi.keyframes.size());
+    for (const auto& k : j.keyframes) {
+      EXPECT_EQ(k.depth.type(), CV_32F);
+      EXPECT_EQ(k.depth.cols, kCam.width / 2) << "half resolution";
+      EXPECT_EQ(k.rgb.size(), k.depth.size());
+    }
+  }
+  // The newest job, run and applied: voxels change inside its box only.
+  const RefineJob& job = jobs.back();
+  const alg::TsdfMap before = fe.map();
+  const RefineOutcome o = runRefineJob(job, p.implicit);
+  EXPECT_GT(o.result.stats.iterations, 0);
+  EXPECT_LE(o.result.stats.iterations, p.implicit.iterations);
+  ASSERT_FALSE(o.result.patch.entries.empty());
+  const alg::PatchStats ps = fe.applyRefinement(o);
+  EXPECT_EQ(ps.applied, o.result.patch.entries.size());
+  for (const auto& e : o.result.patch.entries) {
+    EXPECT_TRUE(job.roi.box_world.contains(fe.map().voxelCenter(e.voxel))) << e.voxel.transpose();
+  }
+  size_t changed = 0;
+  for (size_t b = 0; b < before.blockCount(); ++b) {
+    const int32_t a = fe.map().find(before.key(b));
+    ASSERT_GE(a, 0);
+    for (int i = 0; i < alg::kBlockVoxels; ++i) {
+      if (before.block(b).geo[i].sdf_m == fe.map().block(static_cast<size_t>(a)).geo[i].sdf_m) continue;
+      ++changed;
+      const Eigen::Vector3i g = before.key(b) * alg::kBlockSide + Eigen::Vector3i(i % 8, (i / 8) % 8, i / 64);
+      EXPECT_TRUE(job.roi.box_world.contains(fe.map().voxelCenter(g))) << "changed outside the ROI box";
+    }
+  }
+  EXPECT_GT(changed, 0u);
+  // sigma_Neural reached the quality map for the blocks the job rendered.
+  ASSERT_FALSE(o.result.neural_sigma.empty());
+  const alg::BlockQuality* q = fe.quality().find(o.result.neural_sigma.front().first);
+  if (q) EXPECT_GE(q->sigma_neural_m, 0.0f);
+}
+
 TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {
   Frontend fe(kCam, FrontendParams{});
   fe.setInitialPose(traj_[0].T_world_cam);

@@ -62,6 +62,26 @@ TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
 }
 
+TEST_F(RealtimeTest, RefinementJobsAreWrittenBackOrCounted) {
+  FrontendParams p;
+  p.implicit.iterations = 6;  // small jobs: this checks the plumbing, not the field
+  p.implicit.rays_per_iteration = 48;
+  p.implicit.slice_iterations = 2;
+  Frontend fe(cam_, p);
+  fe.setInitialPose(T0_);
+  options_.fps = 5;  // 200 ms periods: slack for the jobs even under a sanitizer
+  options_.refine_workers = 2;
+  const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
+  ASSERT_GT(fe.refineJobsMade(), 0u) << "the room's keyframes choose ROIs";
+  EXPECT_EQ(s.refine_jobs_submitted + s.refine_jobs_rejected + fe.refineJobsDropped(), fe.refineJobsMade()) << s.report;
+  EXPECT_LE(s.refine_jobs_completed + s.refine_jobs_shed, s.refine_jobs_submitted);
+  EXPECT_GT(s.refine_jobs_completed, 0u) << s.report;
+  EXPECT_EQ(s.refine_outcomes_dropped, 0u);
+  EXPECT_GT(s.refine_voxels_written, 0u) << "completed jobs reach the map";
+  EXPECT_LE(s.patches_applied, s.refine_jobs_completed);
+  EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
+}
+
 TEST_F(RealtimeTest, FrontendAppliesPoseCorrectionsToItsTrajectory) {
   for (int i = 0; i < 3; ++i) fe_.process(frames_[static_cast<size_t>(i)]);
   PoseCorrection c{frames_[1].stamp_ns, Eigen::Isometry3d::Identity()};

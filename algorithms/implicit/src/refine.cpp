@@ -140,8 +140,12 @@ RefineResult RoiRefiner::result() const {
   for (int z = 0; z < n.z(); ++z) {
     for (int y = 0; y < n.y(); ++y) {
       for (int x = 0; x < n.x(); ++x) {
-        const float w0 = snapshot_weight_[(static_cast<size_t>(z) * n.y() + y) * n.x() + x];
-        if (!(w0 > 0.0f)) continue;
+        const size_t node = (static_cast<size_t>(z) * n.y() + y) * n.x() + x;
+        const float w0 = snapshot_weight_[node];
+        // Only voxels some training sample reached: elsewhere nothing
+        // constrained the field (the decoder is shared across the box and
+        // drifts where no ray looks).
+        if (!(w0 > 0.0f) || node_stamp_[node] == 0) continue;
         const int d = std::min({x, y, z, n.x() - 1 - x, n.y() - 1 - y, n.z() - 1 - z});
         const float blend = std::min(1.0f, static_cast<float>(d) / ramp);
         if (blend <= 0.0f) continue;

@@ -146,4 +146,18 @@ void TsdfMap::clear() {
   rehash(1 << 12);
 }
 
+TsdfMap copyBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world) {
+  TsdfMap out(map.params());
+  const BlockKey lo = map.blockOf(box_world.min()), hi = map.blockOf(box_world.max());
+  for (int z = lo.z(); z <= hi.z(); ++z) {
+    for (int y = lo.y(); y <= hi.y(); ++y) {
+      for (int x = lo.x(); x <= hi.x(); ++x) {
+        const int32_t b = map.find(BlockKey(x, y, z));
+        if (b >= 0) out.block(static_cast<size_t>(out.findOrAllocate(BlockKey(x, y, z)))) = map.block(static_cast<size_t>(b));
+      }
+    }
+  }
+  return out;
+}
+
 }  // namespace hxmap::alg

@@ -1,6 +1,9 @@
 #include "hxmap/frontend/frontend.hpp"
 
+#include <algorithm>
 #include <chrono>
+
+#include <opencv2/imgproc.hpp>
 
 #include "hxmap/tsdf/integrate.hpp"
 
@@ -93,6 +96,10 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
     if (params_.quality_enabled) {
       StageTimer t(r.stage_ms[kQuality]);
       scoreKeyframe(r);
+      if (params_.refine_enabled) {
+        keepKeyframeImages(r.keyframe_id);
+        makeRefineJobs(r.keyframe_id);
+      }
     }
   }
   initialized_ = true;
@@ -128,6 +135,90 @@ void Frontend::scoreKeyframe(FrameResult& r) {
   scores_ = quality_.score(map_.truncation());
   rois_ = quality_.selectRois(scores_, map_.voxelSize());
   r.rois = rois_.size();
+}
+
+void Frontend::keepKeyframeImages(uint32_t id) {
+  // The half-resolution level (what refinement samples: 5.7 mm pixels at
+  // 3 m, below a 1 cm voxel), copied: the frame's buffers are not ours to keep.
+  const int level = std::min<int>(1, static_cast<int>(last_frame_.levels.size()) - 1);
+  if (level < 0) return;
+  const alg::FrameLevel& l = last_frame_.levels[level];
+  alg::KeyframeImages k;
+  k.id = id;
+  k.camera = l.camera;
+  k.T_world_cam = T_last_.cast<float>();
+  k.depth = l.depth.clone();
+  if (!l.normal.empty()) k.normal = l.normal.clone();
+  if (last_frame_.has_color && !last_frame_.rgb.empty()) {
+    cv::resize(last_frame_.rgb, k.rgb, l.depth.size(), 0, 0, cv::INTER_AREA);
+  }
+  keyframe_images_.push_back(std::move(k));
+  while (static_cast<int>(keyframe_images_.size()) > std::max(1, params_.keyframe_images)) keyframe_images_.pop_front();
+}
+
+void Frontend::makeRefineJobs(uint32_t keyframe_id) {
+  int made = 0;
+  const auto cooldown = static_cast<uint32_t>(std::max(0, params_.refine_cooldown_keyframes));
+  for (const alg::Roi& roi : rois_) {
+    if (made >= params_.max_jobs_per_keyframe) break;
+    size_t busy = 0;
+    for (const auto& key : roi.blocks) {
+      const auto it = block_submitted_.find(alg::packBlockKey(key));
+      busy += it != block_submitted_.end() && keyframe_id - it->second < cooldown;
+    }
+    if (2 * busy > roi.blocks.size()) continue;
+    RefineJob job;
+    for (uint32_t id : roi.keyframes) {
+      for (const auto& k : keyframe_images_) {
+        if (k.id == id) job.keyframes.push_back(k);  // headers: the images are shared, never written
+      }
+    }
+    if (job.keyframes.empty()) continue;
+    job.id = next_job_id_++;
+    job.keyframe_id = keyframe_id;
+    job.roi = roi;
+    job.snapshot = std::make_shared<const alg::TsdfMap>(alg::copyBlocks(map_, roi.box_world));
+    for (const auto& key : roi.blocks) block_submitted_[alg::packBlockKey(key)] = keyframe_id;
+    pending_jobs_.push_back(std::move(job));
+    ++jobs_made_;
+    ++made;
+  }
+  while (static_cast<int>(pending_jobs_.size()) > std::max(1, params_.max_pending_jobs)) {
+    pending_jobs_.erase(pending_jobs_.begin());
+    ++jobs_dropped_;
+  }
+}
+
+std::vector<RefineJob> Frontend::takeRefineJobs() {
+  std::vector<RefineJob> out;
+  out.swap(pending_jobs_);
+  return out;
+}
+
+RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params) {
+  using Clock = std::chrono::steady_clock;
+  auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  RefineOutcome out;
+  out.job_id = job.id;
+  const auto t0 = Clock::now();
+  alg::RoiRefiner refiner(*job.snapshot, job.roi.box_world, job.keyframes, params);
+  const auto t1 = Clock::now();
+  while (refiner.iterate(std::max(1, params.slice_iterations))) {
+    if (ms(t1, Clock::now()) >= params.time_budget_ms) {
+      out.out_of_time = true;
+      break;
+    }
+  }
+  const auto t2 = Clock::now();
+  out.result = refiner.result();
+  const auto t3 = Clock::now();
+  out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);
+  return out;
+}
+
+alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
+  for (const auto& [key, sigma] : outcome.result.neural_sigma) quality_.setNeuralSigma(key, sigma);
+  return alg::applyPatch(map_, outcome.result.patch);
 }
 
 void Frontend::renderModel(const alg::PreprocessedFrame& fused) {

@@ -74,13 +74,23 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
   std::vector<int64_t> arrival_ns(frames.size(), 0);  // written by the sensor before publish
   SpscRing<KeyframeMsg> keyframes(64);
-  // Results coming back to the map's writer, applied between frames: TSDF
-  // patches from each refinement worker (one ring per producer) and pose
-  // corrections from pose feedback.
-  std::vector<std::unique_ptr<SpscRing<alg::TsdfPatch>>> patch_rings;
-  for (int w = 0; w < options.refine_workers && options.burn_slice_ms > 0; ++w) {
-    patch_rings.push_back(std::make_unique<SpscRing<alg::TsdfPatch>>(16));
+  // ROI refinement: jobs from the frontend to each worker, outcomes back
+  // (one ring per direction and worker: single producer, single consumer).
+  // Outcomes and pose corrections are applied by the frontend between
+  // frames, so it stays the map's only writer.
+  const bool burn = options.burn_slice_ms > 0;
+  const int n_workers = std::max(0, options.refine_workers);
+  std::vector<std::unique_ptr<SpscRing<RefineJob>>> job_rings;
+  std::vector<std::unique_ptr<SpscRing<RefineOutcome>>> outcome_rings;
+  for (int w = 0; w < n_workers; ++w) {
+    job_rings.push_back(std::make_unique<SpscRing<RefineJob>>(4));
+    outcome_rings.push_back(std::make_unique<SpscRing<RefineOutcome>>(8));
   }
+  std::atomic<uint64_t> jobs_pushed{0};
+  std::atomic<uint64_t> refine_slices{0}, refine_done{0}, refine_shed{0}, outcomes_full{0};
+  uint64_t refine_submitted = 0, refine_rejected = 0, voxels_written = 0;  // frontend thread
+  size_t next_worker = 0;                                                 // frontend thread
+  const alg::ImplicitParams implicit = frontend.params().implicit;
   SpscRing<PoseCorrection> corrections(64);
   uint64_t patches_applied = 0, corrections_applied = 0;  // frontend thread
   std::atomic<uint64_t> keyframes_pushed{0};
@@ -122,9 +132,13 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
         continue;
       }
       // Between frames: what background threads sent back.
-      for (auto& ring : patch_rings) {
-        alg::TsdfPatch patch;
-        while (ring->tryPop(patch)) patches_applied += frontend.applyPatch(patch).applied > 0;
+      for (auto& ring : outcome_rings) {
+        RefineOutcome outcome;
+        while (ring->tryPop(outcome)) {
+          const alg::PatchStats ps = frontend.applyRefinement(outcome);
+          patches_applied += ps.applied > 0;
+          voxels_written += ps.applied;
+        }
       }
       PoseCorrection correction;
       while (corrections.tryPop(correction)) corrections_applied += frontend.applyPoseCorrection(correction);
@@ -137,6 +151,21 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       latency_ms.push_back(static_cast<double>(end - arrival_ns[idx]) * 1e-6);
       frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
       if (trace) traceFrameStages(*trace, r, start, 2, static_cast<int64_t>(idx));
+      // ROI jobs the keyframe made: to the workers in turn; when every
+      // worker's ring is full the job is rejected and counted.
+      for (RefineJob& job : frontend.takeRefineJobs()) {
+        bool pushed = false;
+        for (int k = 0; k < n_workers && !pushed && !burn; ++k) {
+          const size_t w = (next_worker + static_cast<size_t>(k)) % static_cast<size_t>(n_workers);
+          pushed = job_rings[w]->tryPush(std::move(job));
+          if (pushed) next_worker = w + 1;
+        }
+        ++(pushed ? refine_submitted : refine_rejected);
+        if (pushed) {
+          jobs_pushed.fetch_add(1, std::memory_order_release);
+          jobs_pushed.notify_all();
+        }
+      }
       if (r.keyframe) {
         if (!keyframes.tryPush(KeyframeMsg{r.stamp_ns, r.T_world_cam})) keyframes_full.fetch_add(1);
         keyframes_pushed.fetch_add(1, std::memory_order_release);
@@ -162,11 +191,77 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
     while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
   });
 
+  // One ROI job on worker w, in scheduler-admitted slices: the field's
+  // setup, then slice_iterations iterations at a time, then the write-back.
+  // Shed (no slack for too long) or stopped: the job is dropped, the map
+  // keeps its fused values.
+  auto runJob = [&](int w, RefineJob& job) {
+    JobTicket ticket{"refine", 10.0};
+    sched.jobSubmitted(ticket, now_ns());
+    std::unique_ptr<alg::RoiRefiner> refiner;
+    RefineOutcome outcome;
+    outcome.job_id = job.id;
+    double train_ms = 0;
+    while (!workers_stop.load()) {
+      const uint64_t epoch = sched.frameEpoch();
+      const Verdict v = sched.admitSlice(ticket, now_ns());
+      if (v == Verdict::kWait) {
+        sched.waitForFrameEnd(epoch);
+        continue;
+      }
+      if (v == Verdict::kShed) {
+        refine_shed.fetch_add(1);
+        return;
+      }
+      const int64_t s0 = now_ns();
+      const char* what = "refine";
+      bool done = false;
+      if (!refiner) {
+        refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, implicit);
+        what = "refine setup";
+      } else if (!refiner->finished() && train_ms < implicit.time_budget_ms) {
+        refiner->iterate(std::max(1, implicit.slice_iterations));
+      } else {
+        outcome.out_of_time = !refiner->finished();
+        outcome.result = refiner->result();
+        what = "refine write-back";
+        done = true;
+      }
+      const int64_t s1 = now_ns();
+      const double ms = static_cast<double>(s1 - s0) * 1e-6;
+      sched.sliceFinished(ticket, ms);
+      refine_slices.fetch_add(1);
+      if (trace) trace->add({what, "background", s0, s1 - s0, 3 + w, -1, -1});
+      if (std::string(what) == "refine setup") outcome.setup_ms = ms;
+      else if (!done) outcome.train_ms += ms, train_ms += ms;
+      else outcome.result_ms = ms;
+      if (done) {
+        sched.jobFinished(ticket);
+        refine_done.fetch_add(1);
+        if (!outcome_rings[static_cast<size_t>(w)]->tryPush(std::move(outcome))) outcomes_full.fetch_add(1);
+        return;
+      }
+    }
+  };
+
   std::vector<std::thread> workers;
-  for (int w = 0; w < options.refine_workers && options.burn_slice_ms > 0; ++w) {
+  for (int w = 0; w < n_workers; ++w) {
     workers.emplace_back([&, w] {
       const std::string name = fmt::format("hx-refine-{}", w);
       nameThisThread(name.c_str());
+      if (!burn) {
+        RefineJob job;
+        while (!workers_stop.load()) {
+          const uint64_t seen = jobs_pushed.load(std::memory_order_acquire);
+          if (job_rings[static_cast<size_t>(w)]->tryPop(job)) {
+            runJob(w, job);
+            job = RefineJob{};  // release the snapshot and images now
+            continue;
+          }
+          jobs_pushed.wait(seen, std::memory_order_acquire);  // no polling
+        }
+        return;
+      }
       JobTicket job{"burn", options.burn_slice_ms};
       int done = 0;
       sched.jobSubmitted(job, now_ns());
@@ -216,9 +311,9 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       const uint64_t done = frames_done.load();
       const SchedulerCounters c = sched.counters();
       const std::string line = fmt::format(
-          "realtime: {:5.1f} FPS, {} of {} frames, dropped {}, deadline misses {}, shed jobs {}, burn slices {}",
+          "realtime: {:5.1f} FPS, {} of {} frames, dropped {}, deadline misses {}, ROI jobs done {}, shed jobs {}",
           static_cast<double>(done - last_done) / since, done, frames.size(), c.frames_dropped, c.deadline_misses,
-          c.jobs_shed_unstarted + c.jobs_cancelled, burn_slices.load());
+          refine_done.load(), c.jobs_shed_unstarted + c.jobs_cancelled);
       if (tty) {
         std::fprintf(stderr, "\r%s   ", line.c_str());
       } else {
@@ -232,10 +327,22 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   frontend_thread.join();
   workers_stop.store(true);
   sched.wakeAll();
+  jobs_pushed.fetch_add(1, std::memory_order_release);
+  jobs_pushed.notify_all();
   keyframes_pushed.fetch_add(1, std::memory_order_release);
   keyframes_pushed.notify_all();
   for (auto& w : workers) w.join();
   feedback.join();
+  // Outcomes that arrived after the last frame: applied now (the threads
+  // are joined), so no finished refinement is lost.
+  for (auto& ring : outcome_rings) {
+    RefineOutcome outcome;
+    while (ring->tryPop(outcome)) {
+      const alg::PatchStats ps = frontend.applyRefinement(outcome);
+      patches_applied += ps.applied > 0;
+      voxels_written += ps.applied;
+    }
+  }
   if (tty && options.status_interval_s > 0) std::fputc('\n', stderr);
 
   stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();
@@ -251,20 +358,34 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   stats.patches_applied = patches_applied;
   stats.corrections_applied = corrections_applied;
   stats.feedback_ring_full = keyframes_full.load();
+  stats.refine_jobs_submitted = refine_submitted;
+  stats.refine_jobs_rejected = refine_rejected;
+  stats.refine_jobs_completed = refine_done.load();
+  stats.refine_jobs_shed = refine_shed.load();
+  stats.refine_outcomes_dropped = outcomes_full.load();
+  stats.refine_slices = refine_slices.load();
+  stats.refine_voxels_written = voxels_written;
   const SchedulerCounters& c = stats.counters;
   stats.report = fmt::format(
       "realtime playback at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement\n"
       "  frames: in {}, processed {}, dropped {}, deadline misses {}\n"
       "  sustained {:.1f} FPS; latency arrival->pose p50 {:.1f} ms, p99 {:.1f} ms; frontend p50 {:.1f} ms, p99 {:.1f} ms\n"
-      "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices run ({:.0f} ms of CPU), "
-      "{} paused\n"
+      "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices paused\n"
+      "  ROI refinement: {} jobs made, {} to workers ({} rejected: rings full), {} completed and written back "
+      "({:.0f}%), {} shed, {} still queued or running at the end; {} slices, {} voxels written\n"
+      "  burn load: {} slices ({:.0f} ms of CPU)\n"
       "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} pose "
       "corrections\n",
       sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()), workers.size(), c.frames_in,
       c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
       stats.frontend_p50_ms, stats.frontend_p99_ms, c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted,
-      c.jobs_cancelled, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
-      c.slices_paused, stats.keyframes_to_feedback, stats.feedback_ring_full, stats.patches_applied,
+      c.jobs_cancelled, c.slices_paused, refine_submitted + refine_rejected, refine_submitted, refine_rejected,
+      stats.refine_jobs_completed,
+      refine_submitted ? 100.0 * static_cast<double>(stats.refine_jobs_completed) / static_cast<double>(refine_submitted)
+                       : 0.0,
+      stats.refine_jobs_shed, refine_submitted - stats.refine_jobs_completed - stats.refine_jobs_shed, stats.refine_slices,
+      voxels_written, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
+      stats.keyframes_to_feedback, stats.feedback_ring_full, stats.patches_applied,
       stats.corrections_applied);
   return stats;
 }

@@ -339,7 +339,11 @@ TEST_F(PlaneScene, TrainingMovesTheSurfaceToTheObservationsAndWritesItBack) {
 }
 
 TEST_F(PlaneScene, WriteBackOfAnUntrainedFieldKeepsTheMap) {
-  RoiRefiner refiner(map_, box_, keyframes_, smallParams());
+  ImplicitParams p = smallParams();
+  EXPECT_TRUE(RoiRefiner(map_, box_, keyframes_, p).result().patch.entries.empty());  // no sample reached a voxel yet
+  p.learning_rate_grid = p.learning_rate_mlp = 0;  // samples reach voxels, values stay
+  RoiRefiner refiner(map_, box_, keyframes_, p);
+  refiner.iterate(10);
   const RefineResult r = refiner.result();
   ASSERT_FALSE(r.patch.entries.empty());
   TsdfMap same = map_;

@@ -59,7 +59,8 @@ class RoiRefiner {
   const std::vector<TrainingRay>& rays() const { return rays_; }
 
   /// Write-back (eq 11): the field's signed distance at every voxel center
-  /// the snapshot had observed, truncated to mu, and its color, fused with
+  /// the snapshot had observed and a training sample reached (its grid
+  /// node was updated), truncated to mu, and its color, fused with
   /// writeback_weight_ratio times the snapshot's weight, fading to 0 at the
   /// box border.
   RefineResult result() const;

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "hxmap/tsdf/params.hpp"
 
@@ -161,6 +162,10 @@ class TsdfMap {
   std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
 };
+
+/// A map holding copies of the allocated blocks of `map` that overlap
+/// `box_world` (same parameters): a snapshot for a reader on another thread.
+TsdfMap copyBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world);
 
 /// Block lookups through a small direct-mapped cache, for runs of nearby
 /// queries (one ray, one neighbourhood): the 8 blocks around a corner fall

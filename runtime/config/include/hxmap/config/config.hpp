@@ -8,6 +8,7 @@
 
 #include "hxmap/core/expected.hpp"
 #include "hxmap/preprocess/params.hpp"
+#include "hxmap/implicit/params.hpp"
 #include "hxmap/quality/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
@@ -58,6 +59,17 @@ struct RuntimeConfig {
   int shed_after_periods = 8;      ///< background jobs without slack this long are shed
 };
 
+/// ROI refinement (paper 3.3): which jobs the frontend makes, and the
+/// neural field each job trains.
+struct RefineConfig {
+  bool enabled = true;
+  int max_jobs_per_keyframe = 2;
+  int cooldown_keyframes = 10;
+  int keyframe_images = 24;
+  int max_pending_jobs = 8;
+  alg::ImplicitParams implicit;
+};
+
 struct HxmapConfig {
   CameraConfig camera;
   DatasetConfig dataset;
@@ -68,6 +80,7 @@ struct HxmapConfig {
   alg::TrackingParams tracking;
   bool quality_enabled = true;
   alg::QualityParams quality;
+  RefineConfig refine;
   SyntheticConfig synthetic;
   EvalConfig eval;
   RuntimeConfig runtime;

@@ -3,11 +3,15 @@
 #pragma once
 
 #include <array>
+#include <deque>
+#include <memory>
+#include <unordered_map>
 #include <string>
 #include <vector>
 
 #include "hxmap/core/frame.hpp"
 #include "hxmap/core/parallel.hpp"
+#include "hxmap/implicit/refine.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
 #include "hxmap/tracking/icp.hpp"
@@ -24,7 +28,46 @@ struct FrontendParams {
   alg::TrackingParams tracking;
   alg::QualityParams quality;
   bool quality_enabled = true;  ///< score map regions on keyframes (paper 3.2)
+  alg::ImplicitParams implicit;
+  /// Make ROI refinement jobs (paper 3.3) from each keyframe's ROIs; the
+  /// caller runs them (takeRefineJobs) and hands the results back
+  /// (applyRefinement). Needs quality_enabled.
+  bool refine_enabled = true;
+  int max_jobs_per_keyframe = 2;
+  /// A block refined (or submitted) is not submitted again for this many
+  /// keyframes; an ROI goes only when most of its blocks are free.
+  int refine_cooldown_keyframes = 10;
+  /// Keyframe images kept for jobs (half resolution: about 1.1 MB each).
+  int keyframe_images = 24;
+  /// Jobs not taken by then are dropped, oldest first, and counted.
+  int max_pending_jobs = 8;
 };
+
+/// One ROI refinement, self-contained: a copy of the ROI's blocks and the
+/// images of the keyframes that see it, so a worker thread never touches
+/// the frontend's map.
+struct RefineJob {
+  uint64_t id = 0;
+  uint32_t keyframe_id = 0;  ///< the keyframe whose scoring chose the ROI
+  alg::Roi roi;
+  std::shared_ptr<const alg::TsdfMap> snapshot;
+  std::vector<alg::KeyframeImages> keyframes;
+};
+
+/// A job's outcome, for the map's writer.
+struct RefineOutcome {
+  uint64_t job_id = 0;
+  alg::RefineResult result;
+  double setup_ms = 0;   ///< field initialization and ray collection
+  double train_ms = 0;   ///< the iterations
+  double result_ms = 0;  ///< write-back and sigma_Neural
+  bool out_of_time = false;  ///< stopped by params.time_budget_ms
+};
+
+/// Runs a job to its end on the calling thread, within the job's iteration
+/// cap and time budget (offline runs and benchmarks; the real-time runtime
+/// runs jobs in slices under its scheduler instead).
+RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params);
 
 /// kQuality runs on keyframes only (0 ms on other frames).
 enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kQuality, kStageCount };
@@ -75,8 +118,17 @@ class Frontend {
   /// that stamp.
   bool applyPoseCorrection(const PoseCorrection& correction);
 
+  /// The ROI refinement jobs made since the last call (paper 3.3).
+  std::vector<RefineJob> takeRefineJobs();
+  /// Between frames: fuse a job's write-back and hand its sigma_Neural to
+  /// the quality map. Returns the patch statistics.
+  alg::PatchStats applyRefinement(const RefineOutcome& outcome);
+  size_t refineJobsMade() const { return jobs_made_; }
+  size_t refineJobsDropped() const { return jobs_dropped_; }
+
   const alg::TsdfMap& map() const { return map_; }
   const alg::PinholeCamera& camera() const { return camera_; }
+  const FrontendParams& params() const { return params_; }
   /// Every processed frame's pose (lost frames carry the last good pose).
   const Trajectory& trajectory() const { return trajectory_; }
   size_t lostFrames() const { return lost_frames_; }
@@ -95,6 +147,8 @@ class Frontend {
  private:
   void renderModel(const alg::PreprocessedFrame& fused);
   void scoreKeyframe(FrameResult& r);
+  void keepKeyframeImages(uint32_t id);
+  void makeRefineJobs(uint32_t keyframe_id);
 
   alg::PinholeCamera camera_;
   FrontendParams params_;
@@ -113,6 +167,11 @@ class Frontend {
   alg::QualityMap quality_;
   std::vector<alg::BlockScore> scores_;
   std::vector<alg::Roi> rois_;
+  std::deque<alg::KeyframeImages> keyframe_images_;  ///< newest last
+  std::vector<RefineJob> pending_jobs_;
+  std::unordered_map<uint64_t, uint32_t> block_submitted_;  ///< block -> keyframe id of its last job
+  uint64_t next_job_id_ = 1;
+  size_t jobs_made_ = 0, jobs_dropped_ = 0;
 };
 
 }  // namespace hxmap::rt

@@ -8,14 +8,17 @@
 //   hx-sensor     publishes frame indices into a LatestSlot at their due time;
 //                 an unread older frame is replaced and counted as dropped.
 //   hx-frontend   the only thread touching the Frontend (and so the map).
-//   hx-refine-N   refinement workers; each job slice asks the scheduler first.
+//   hx-refine-N   refinement workers: the frontend's ROI jobs (paper 3.3),
+//                 each slice (field setup, a few training iterations, the
+//                 write-back) admitted by the scheduler first; or, with
+//                 burn_slice_ms, a synthetic CPU load for scheduler tests.
 //   hx-feedback   takes keyframe messages from an SpscRing (the sliding-window
 //                 optimization itself is not part of this runner yet: it
 //                 counts the keyframes it would optimize).
 // Results flow back to the frontend through rings too (TSDF patches from
 // each worker, pose corrections from feedback) and are applied between
-// frames, so the frontend stays the map's only writer. No producer sends
-// any yet (refinement and the window optimization are later work).
+// frames, so the frontend stays the map's only writer. Pose corrections
+// have no producer yet (the window optimization is later work).
 // The calling thread prints the status line and watches `stop` (set by a
 // signal handler): on stop the sensor stops publishing, the frontend finishes
 // the frame in hand, workers cancel their jobs, and everything is joined, so
@@ -54,6 +57,10 @@ struct RealtimeStats {
   double frontend_p50_ms = 0, frontend_p99_ms = 0;
   uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
   uint64_t patches_applied = 0, corrections_applied = 0;  ///< results applied between frames
+  /// ROI refinement jobs: handed to workers, rejected (every worker's ring
+  /// full), completed and written back, shed by the scheduler.
+  uint64_t refine_jobs_submitted = 0, refine_jobs_rejected = 0, refine_jobs_completed = 0, refine_jobs_shed = 0;
+  uint64_t refine_outcomes_dropped = 0, refine_slices = 0, refine_voxels_written = 0;
   bool stopped_early = false;
   std::string report;              ///< the final table
   std::vector<FrameResult> results;
