@@ -15,17 +15,24 @@
 //    the quality room and on the shared Replica slice.
 // 3. Time per ROI job and per iteration, memory per ROI.
 //
-//   bench_refine [quality_sequence_dir|-] [replica_dir]
-// Prints numbers; asserts nothing.
+//   bench_refine [quality_sequence_dir|-] [replica_dir|-] [config.yaml]
+// The configuration's refine section (and tsdf truncation ratio) applies;
+// HXMAP_BENCH_VOXELS="0.02" limits the voxel sizes. Prints numbers;
+// asserts nothing.
 #include <algorithm>
+#include <array>
+#include <map>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
+#include "hxmap/config/config.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
+#include "hxmap/eval/triangle_bvh.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/raycast.hpp"
@@ -69,12 +76,46 @@ Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt, 
   return s;
 }
 
+// Precision at 1 cm of the reconstruction inside the boxes, per kind of
+// region (the nearest known-bad primitive within 3 voxels, else clean):
+// where refinement helps and where it hurts.
+void precisionByKind(const char* label, const alg::TriangleMesh& recon, const alg::TriangleBvh& gt,
+                     const drv::SyntheticScene& scene, const std::vector<Eigen::AlignedBox3f>& boxes, float voxel) {
+  const alg::TriangleMesh rc = crop(recon, boxes);
+  if (rc.empty()) return;
+  const auto pts = alg::sampleSurface(rc, 100000, 7);
+  std::map<std::string, std::array<double, 3>> by;  // samples, within 1 cm, sum of distances
+  for (const auto& p : pts) {
+    int k = -1;
+    const float d_bad = scene.badDistance(p, &k);
+    std::string kind = "clean";
+    if (d_bad < 3 * voxel && k >= 0) {
+      const auto& prim = scene.primitives()[static_cast<size_t>(k)];
+      kind = prim.kind == drv::Primitive::Kind::kCapsule ? "rod"
+             : prim.bad == drv::Primitive::Bad::kEdges   ? "board edge"
+             : prim.noise_scale > 1                      ? "noisy patch"
+                                                         : "grazing shelf";
+    }
+    const float d = gt.distance(p, 0.05f);
+    auto& a = by[kind];
+    a[0] += 1;
+    a[1] += d <= 0.01f;
+    a[2] += std::min(d, 0.05f);
+  }
+  std::printf("    %-7s", label);
+  for (const auto& [kind, a] : by) {
+    std::printf("  %s: %.0f%% of %.0f%% (mean %.1f mm)", kind.c_str(), 100 * a[1] / a[0], 100 * a[0] / pts.size(),
+                1000 * a[2] / a[0]);
+  }
+  std::printf("\n");
+}
+
 // Mean |rendered - input| depth over the keyframes' pixels whose input
 // surface lies in the box, and the share of those the map renders no
 // surface for.
 struct DepthL1 {
-  double sum_m = 0;
-  size_t n = 0, missing = 0;
+  std::vector<double> error_m;
+  size_t missing = 0;
 };
 void roiDepthL1(const alg::TsdfMap& map, const rt::RefineJob& job, DepthL1& acc) {
   for (const auto& kf : job.keyframes) {
@@ -90,8 +131,7 @@ void roiDepthL1(const alg::TsdfMap& map, const rt::RefineJob& job, DepthL1& acc)
           ++acc.missing;
           continue;
         }
-        acc.sum_m += std::abs(zr - z);
-        ++acc.n;
+        acc.error_m.push_back(std::abs(zr - z));
       }
     }
   }
@@ -153,18 +193,24 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
 }
 
 void printJobs(const HybridRun& r) {
-  auto l1 = [](const DepthL1& d) { return d.n ? 1000.0 * d.sum_m / static_cast<double>(d.n) : 0.0; };
+  auto l1 = [](const DepthL1& d) {
+    double sum = 0;
+    for (double e : d.error_m) sum += e;
+    return d.error_m.empty() ? 0.0 : 1000.0 * sum / static_cast<double>(d.error_m.size());
+  };
+  auto med = [](const DepthL1& d) { return 1000.0 * median(d.error_m); };
   auto miss = [](const DepthL1& d) {
-    return d.n + d.missing ? 100.0 * static_cast<double>(d.missing) / static_cast<double>(d.n + d.missing) : 0.0;
+    const size_t n = d.error_m.size() + d.missing;
+    return n ? 100.0 * static_cast<double>(d.missing) / static_cast<double>(n) : 0.0;
   };
   std::printf("  jobs: %zu (%zu converged early, %zu stopped by the time budget); per job median %.0f ms (setup %.1f ms), "
               "%.0f iterations, per iteration median %.2f ms; memory per ROI median %.1f MiB, max %.1f MiB\n",
               r.jobs, r.converged, r.out_of_time, median(r.job_ms), median(r.setup_ms), median(r.iterations),
               median(r.iteration_ms), median(r.memory_mb),
               r.memory_mb.empty() ? 0.0 : *std::max_element(r.memory_mb.begin(), r.memory_mb.end()));
-  std::printf("  map rendering vs input depth inside each job's ROI: L1 %.2f mm before -> %.2f mm after write-back "
-              "(no surface rendered: %.1f%% -> %.1f%% of pixels)\n",
-              l1(r.before), l1(r.after), miss(r.before), miss(r.after));
+  std::printf("  map rendering vs input depth inside each job's ROI, before -> after its write-back: median %.2f -> %.2f mm, "
+              "mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels\n",
+              med(r.before), med(r.after), l1(r.before), l1(r.after), miss(r.before), miss(r.after));
 }
 
 }  // namespace
@@ -212,8 +258,24 @@ int main(int argc, char** argv) {
   mp.point_to_point = false;
   const alg::ObservedBy observed{cam, gt, 4.0};
 
-  for (const double voxel : {0.02, 0.01}) {
-    rt::FrontendParams params;
+  rt::FrontendParams base;
+  if (argc > 3) {
+    auto cfg = rt::loadConfig(argv[3]);
+    if (!cfg) {
+      std::fprintf(stderr, "%s\n", cfg.message().c_str());
+      return 2;
+    }
+    base.implicit = cfg->refine.implicit;
+    base.refine_enabled = cfg->refine.enabled;
+    base.max_jobs_per_keyframe = cfg->refine.max_jobs_per_keyframe;
+    base.refine_cooldown_keyframes = cfg->refine.cooldown_keyframes;
+    base.keyframe_images = cfg->refine.keyframe_images;
+    base.quality = cfg->quality;
+  }
+  std::vector<double> voxels{0.02, 0.01};
+  if (const char* v = std::getenv("HXMAP_BENCH_VOXELS")) voxels = {std::atof(v)};
+  for (const double voxel : voxels) {
+    rt::FrontendParams params = base;
     params.tsdf.voxel_size_m = voxel;
     params.tsdf.truncation_m = 4 * voxel;
     std::fprintf(stderr, "quality room at %.0f cm voxels ...\n", voxel * 100);
@@ -235,9 +297,14 @@ int main(int argc, char** argv) {
     std::printf("  in %3zu ROIs  hybrid   %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points; target: >= +10)\n",
                 r.boxes.size(), 100 * in_h.precision, 100 * in_h.recall, 100 * in_h.f1, 100 * (in_h.f1 - in_t.f1));
     printJobs(r);
+    std::printf("  precision @1cm inside the ROIs per region kind (share of the ROI surface):\n");
+    const alg::TriangleBvh gt_bvh(gt_mesh);
+    precisionByKind("TSDF", r.tsdf_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
+    precisionByKind("hybrid", r.hybrid_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
   }
 
   // Replica slice: depth L1 inside ROIs before and after write-back.
+  if (argc > 2 && std::string(argv[2]) == "-") return 0;
   const std::string replica = argc > 2 ? argv[2] : std::string(HXMAP_SHARED_DATA) + "/replica/room0_first20";
   auto ds = drv::Dataset::open(replica);
   if (!ds) {
@@ -250,7 +317,7 @@ int main(int argc, char** argv) {
     if (f) rframes.push_back(std::move(*f));
   }
   std::fprintf(stderr, "Replica slice ...\n");
-  const HybridRun rr = mapTwice(rframes, (*ds)->camera(), (*ds)->groundTruth(), rt::FrontendParams{});
+  const HybridRun rr = mapTwice(rframes, (*ds)->camera(), (*ds)->groundTruth(), base);
   std::printf("Replica slice (%zu frames, %dx%d, 2 cm voxels):\n", rframes.size(), (*ds)->camera().width,
               (*ds)->camera().height);
   printJobs(rr);

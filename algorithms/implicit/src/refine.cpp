@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <unordered_map>
+#include <cstdio>
+#include <cstdlib>
 
 namespace hxmap::alg {
 
@@ -17,12 +19,18 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
   rays_ = collectRays(keyframes, field_.box(), params_);
 
   snapshot_weight_.assign(static_cast<size_t>(count.x()) * count.y() * count.z(), 0.0f);
+  surface_offset_.assign(snapshot_weight_.size(), Eigen::Vector3f::Zero());
   for (int z = 0; z < count.z(); ++z) {
     for (int y = 0; y < count.y(); ++y) {
       for (int x = 0; x < count.x(); ++x) {
         Voxel v;
         if (map.voxel(vmin + Eigen::Vector3i(x, y, z), v)) {
-          snapshot_weight_[(static_cast<size_t>(z) * count.y() + y) * count.x() + x] = v.weight;
+          const size_t node = (static_cast<size_t>(z) * count.y() + y) * count.x() + x;
+          snapshot_weight_[node] = v.weight;
+          // Where the voxel's nearest surface is (for the bias lookup): the
+          // center moved by its distance against the normal.
+          const float* g = &field_.parameters()[node * NeuralField::kCoarseChannels];
+          surface_offset_[node] = -v.sdf_m * Eigen::Vector3f(g[1], g[2], g[3]);
         }
       }
     }
@@ -35,13 +43,76 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
   m_.assign(np, 0.0f);
   v_.assign(np, 0.0f);
   node_stamp_.assign(field_.coarseGrid().nodeCount() + field_.fineGrid().nodeCount(), 0);
+  seen_.assign(field_.coarseGrid().nodeCount(), 0);
   stats_.rays = rays_.size();
   stats_.parameters = np;
-  stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) +
-                        rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * sizeof(float);
+  stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) + seen_.size() +
+                        rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * (sizeof(float) + sizeof(Eigen::Vector3f));
   stats_.depth_l1_before_m = evalDepthL1(nullptr);
   stats_.depth_l1_after_m = stats_.depth_l1_before_m;
+  measureTsdfBias();
   finished_ = rays_.empty();
+}
+
+void RoiRefiner::measureTsdfBias() {
+  // The untrained field is the TSDF: render an even spread of the rays and
+  // pool each cell's residuals D_tsdf - t_obs.
+  const Eigen::Vector3i n = field_.voxelCount();
+  cell_dims_ = (n + Eigen::Vector3i::Constant(kCellVoxels - 1)) / kCellVoxels;
+  cells_.assign(static_cast<size_t>(cell_dims_.x()) * cell_dims_.y() * cell_dims_.z(), {});
+  if (rays_.empty()) return;
+  const size_t m = std::min<size_t>(rays_.size(), static_cast<size_t>(std::max(1, params_.bias_rays)));
+  std::vector<int32_t> which(m);
+  for (size_t i = 0; i < m; ++i) which[i] = static_cast<int32_t>(i * rays_.size() / m);
+  ImplicitParams p = params_;
+  p.regularizer_points = 0;
+  uint64_t rng = 2;
+  const RenderBatch b = sampleBatch(field_, rays_, which, p, false, rng);
+  Rendering rendering;
+  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
+  const float vs = field_.voxelSize();
+  for (size_t i = 0; i < b.rays.size(); ++i) {
+    const TrainingRay& r = rays_[static_cast<size_t>(b.rays[i])];
+    // Binned where the TSDF renders the surface (where it has one): binning
+    // by the observed point would sort rays by their noise (the rays whose
+    // noise carries them across a cell border all err the same way).
+    const float t_bin = rendering.depth[i] < b.t[(i + 1) * static_cast<size_t>(b.samples) - 1] ? rendering.depth[i] : r.t_obs;
+    const Eigen::Vector3f q = (r.origin + t_bin * r.dir - field_.box().min()) / vs + Eigen::Vector3f::Constant(0.5f);
+    Eigen::Vector3i c;
+    for (int a = 0; a < 3; ++a) c[a] = std::clamp(floorToInt(q[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
+    Cell& cell = cells_[(static_cast<size_t>(c.z()) * cell_dims_.y() + c.y()) * cell_dims_.x() + c.x()];
+    const double e = rendering.depth[i] - r.t_obs;
+    cell.sum += e;
+    cell.sum_sq += e * e;
+    ++cell.rays;
+    cell.keyframes |= uint64_t{1} << (r.keyframe % 64);
+  }
+}
+
+float RoiRefiner::writebackRatio(int x, int y, int z, float w0) const {
+  // Inverse-variance blending of two estimates of the voxel's distance: the
+  // TSDF's, with variance sigma^2 / n + b^2 (noise averaged over the n
+  // frames fused, plus a bias b averaging cannot remove), and the field's,
+  // sigma^2 / K from the K keyframes it was trained on. sigma^2 and b^2 come
+  // from the cell's residuals (spread and squared mean, less the mean's own
+  // noise). The field's weight relative to the TSDF's is then
+  // K / n + K b^2 / sigma^2, capped at writeback_weight_ratio.
+  const auto cap = static_cast<float>(params_.writeback_weight_ratio);
+  const Eigen::Vector3i n_vox = field_.voxelCount();
+  const Eigen::Vector3f at = Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
+                             surface_offset_[(static_cast<size_t>(z) * n_vox.y() + y) * n_vox.x() + x] / field_.voxelSize() +
+                             Eigen::Vector3f::Constant(0.5f);
+  Eigen::Vector3i ci;
+  for (int a = 0; a < 3; ++a) ci[a] = std::clamp(floorToInt(at[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
+  const Cell& c = cells_[(static_cast<size_t>(ci.z()) * cell_dims_.y() + ci.y()) * cell_dims_.x() + ci.x()];
+  const float n = std::max(w0, 1.0f);
+  if (c.rays < kMinCellRays) return std::min(cap, 1.0f / n);  // no evidence of a bias: one keyframe's worth
+  const double mean = c.sum / c.rays;
+  const double floor = 0.1 * field_.voxelSize();
+  const double var = std::max(c.sum_sq / c.rays - mean * mean, floor * floor);
+  const double bias_sq = std::max(0.0, mean * mean - var / c.rays);
+  const auto K = static_cast<double>(std::max(1, __builtin_popcountll(c.keyframes)));
+  return std::min(cap, static_cast<float>(K / n + K * bias_sq / var));
 }
 
 double RoiRefiner::evalDepthL1(std::vector<float>* per_ray) const {
@@ -50,12 +121,31 @@ double RoiRefiner::evalDepthL1(std::vector<float>* per_ray) const {
   p.regularizer_points = 0;
   uint64_t rng = 1;
   const RenderBatch b = sampleBatch(field_, rays_, eval_rays_, p, false, rng);
-  std::vector<float> rendered;
-  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendered);
+  Rendering rendering;
+  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
   double sum = 0;
-  for (size_t i = 0; i < b.rays.size(); ++i) sum += std::abs(rendered[i] - rays_[static_cast<size_t>(b.rays[i])].t_obs);
-  if (per_ray) *per_ray = std::move(rendered);
+  for (size_t i = 0; i < b.rays.size(); ++i) {
+    sum += std::abs(rendering.depth[i] - rays_[static_cast<size_t>(b.rays[i])].t_obs);
+  }
+  if (per_ray) *per_ray = std::move(rendering.depth);
   return sum / static_cast<double>(b.rays.size());
+}
+
+void RoiRefiner::markSeen(const RenderBatch& batch) {
+  // Voxels around samples that light still reaches (in front of the first
+  // surface or at it): what the renderings constrain.
+  const int N = batch.samples;
+  for (size_t i = 0; i < batch.rays.size(); ++i) {
+    const TrainingRay& r = rays_[static_cast<size_t>(batch.rays[i])];
+    for (int k = 0; k < N; ++k) {
+      const size_t j = i * static_cast<size_t>(N) + static_cast<size_t>(k);
+      if (rendering_.transmittance[j] < kSeenTransmittance) break;
+      const Corners c = locate(field_.coarseGrid(), r.origin + batch.t[j] * r.dir);
+      for (int q = 0; q < 8; ++q) {
+        if (c.weight[q] > 0.0f) seen_[static_cast<size_t>(c.node[q])] = 1;
+      }
+    }
+  }
 }
 
 bool RoiRefiner::iterate(int n) {
@@ -67,7 +157,8 @@ bool RoiRefiner::iterate(int n) {
   for (int it = 0; it < n && !finished_; ++it) {
     const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_);
     touched_.clear();
-    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_);
+    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_, &rendering_);
+    markSeen(batch);
     if (stats_.iterations == 0) stats_.first = L;
     stats_.last = L;
     const int t = ++stats_.iterations;
@@ -134,7 +225,6 @@ RefineResult RoiRefiner::result() const {
   const Eigen::Vector3i n = field_.voxelCount(), vmin = field_.voxelMin();
   const float mu = field_.truncation();
   const float ramp = static_cast<float>(std::max(1e-3, params_.border_blend_voxels));
-  const auto ratio = static_cast<float>(params_.writeback_weight_ratio);
   std::vector<Eigen::Vector3i> voxels;
   std::vector<float> weights;
   for (int z = 0; z < n.z(); ++z) {
@@ -142,15 +232,16 @@ RefineResult RoiRefiner::result() const {
       for (int x = 0; x < n.x(); ++x) {
         const size_t node = (static_cast<size_t>(z) * n.y() + y) * n.x() + x;
         const float w0 = snapshot_weight_[node];
-        // Only voxels some training sample reached: elsewhere nothing
-        // constrained the field (the decoder is shared across the box and
-        // drifts where no ray looks).
-        if (!(w0 > 0.0f) || node_stamp_[node] == 0) continue;
+        // Only voxels the renderings saw (a sample with light still reaching
+        // it): elsewhere nothing constrained the field (the decoder is
+        // shared across the box and drifts where no ray looks, e.g. behind
+        // a surface).
+        if (!(w0 > 0.0f) || !seen_[node]) continue;
         const int d = std::min({x, y, z, n.x() - 1 - x, n.y() - 1 - y, n.z() - 1 - z});
         const float blend = std::min(1.0f, static_cast<float>(d) / ramp);
         if (blend <= 0.0f) continue;
         voxels.push_back(vmin + Eigen::Vector3i(x, y, z));
-        weights.push_back(ratio * w0 * blend);
+        weights.push_back(writebackRatio(x, y, z, w0) * w0 * blend);
       }
     }
   }

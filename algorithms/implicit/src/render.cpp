@@ -205,7 +205,7 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
 
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
                        const ImplicitParams& params, std::vector<float>* grad, std::vector<int32_t>* touched,
-                       std::vector<float>* rendered_t) {
+                       Rendering* rendering) {
   LossTerms L;
   const size_t R = batch.rays.size(), P = batch.reg_points.size();
   const int N = batch.samples;
@@ -241,7 +241,10 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
   const float inv_r = 1.0f / static_cast<float>(R);
   const float lam_d = static_cast<float>(params.lambda_depth), lam_p = static_cast<float>(params.lambda_photo);
   const float dd = static_cast<float>(params.depth_huber_voxels), dp = static_cast<float>(params.photo_huber);
-  if (rendered_t) rendered_t->assign(R, 0.0f);
+  if (rendering) {
+    rendering->depth.assign(R, 0.0f);
+    rendering->transmittance.assign(n_samples, 0.0f);
+  }
   std::vector<float> x(static_cast<size_t>(N)), logphi(static_cast<size_t>(N)), alpha(static_cast<size_t>(N)),
       ratio(static_cast<size_t>(N)), T(static_cast<size_t>(N)), w(static_cast<size_t>(N)), g(static_cast<size_t>(N));
   std::vector<Eigen::Vector3f> cbar(static_cast<size_t>(N));
@@ -267,7 +270,11 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
       W += w[k];
       D += w[k] * (0.5f * (t[k] + t[k + 1]) - t_far);
     }
-    if (rendered_t) (*rendered_t)[i] = D;
+    if (rendering) {
+      rendering->depth[i] = D;
+      for (int k = 0; k < M; ++k) rendering->transmittance[j0 + k] = T[k];
+      rendering->transmittance[j0 + M] = Ti;
+    }
     const float rd = (D - r.t_obs) / vs;
     sum_depth += huber(rd, dd);
     const float dLdD = lam_d * inv_r * huberGrad(rd, dd) / vs;

@@ -338,6 +338,48 @@ TEST_F(PlaneScene, TrainingMovesTheSurfaceToTheObservationsAndWritesItBack) {
   EXPECT_GT(std::abs(border - kTrueZ), std::abs(after - kTrueZ));
 }
 
+TEST_F(PlaneScene, KeyframeNoiseAloneBarelyMovesTheMap) {
+  // The map is fused from the true plane; the keyframes see it with 1 cm
+  // zero-mean noise per pixel. The field can fit that noise, but the TSDF
+  // (which averaged its frames) has no bias to correct: write-back must
+  // leave the surface close to where it was.
+  TsdfMap clean{tsdfParams()};
+  for (int rep = 0; rep < 8; ++rep) {
+    for (const auto& T : viewPoses()) fuse(clean, planeView(0, T, kTrueZ));
+  }
+  std::mt19937 rng(17);
+  std::normal_distribution<float> noise(0.0f, 0.01f);
+  std::vector<KeyframeImages> noisy = keyframes_;
+  for (auto& k : noisy) {
+    k.depth = k.depth.clone();
+    for (auto it = k.depth.begin<float>(); it != k.depth.end<float>(); ++it) {
+      if (*it > 0) *it += noise(rng);
+    }
+  }
+  ImplicitParams p = smallParams();
+  p.iterations = 80;
+  p.convergence_rel = 0;
+  RoiRefiner refiner(clean, box_, noisy, p);
+  while (refiner.iterate(10)) {
+  }
+  const RefineResult r = refiner.result();
+  ASSERT_FALSE(r.patch.entries.empty());
+  // Every written voxel keeps most of its fused value: its weight is about
+  // K / n of the TSDF's (4 keyframes against 32 frames), far below the cap.
+  for (const auto& e : r.patch.entries) {
+    Voxel v;
+    ASSERT_TRUE(clean.voxel(e.voxel, v));
+    EXPECT_LT(e.weight, 0.5f * v.weight) << e.voxel.transpose();
+  }
+  TsdfMap refined = clean;
+  applyPatch(refined, r.patch);
+  double worst = 0;
+  for (float x = 0.04f; x <= 0.12f; x += 0.02f) {
+    for (float y = 0.04f; y <= 0.12f; y += 0.02f) worst = std::max(worst, std::abs(double(surfaceZ(refined, x, y)) - kTrueZ));
+  }
+  EXPECT_LT(worst, 0.002) << "the noise leaked into the map";
+}
+
 TEST_F(PlaneScene, WriteBackOfAnUntrainedFieldKeepsTheMap) {
   ImplicitParams p = smallParams();
   EXPECT_TRUE(RoiRefiner(map_, box_, keyframes_, p).result().patch.entries.empty());  // no sample reached a voxel yet

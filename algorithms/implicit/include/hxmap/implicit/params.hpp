@@ -39,16 +39,18 @@ struct ImplicitParams {
   double learning_rate_mlp = 0.005;
   int iterations = 150;             ///< cap per job
   double time_budget_ms = 1500.0;   ///< cap per job (cooperative: checked between slices)
-  int slice_iterations = 5;         ///< iterations between scheduler checks
+  int slice_iterations = 1;         ///< iterations per scheduler slice (one is about 5-10 ms)
   /// Early stop: the smoothed loss improved by less than this share over
   /// the last `patience` iterations.
   double convergence_rel = 0.002;
   int patience = 25;
 
   // Write-back (eq 11).
-  /// A refined voxel is fused with this many times the weight it had in the
-  /// snapshot (so it takes ratio / (1 + ratio) of the refined value).
+  /// At most, a refined voxel is fused with this many times the weight it
+  /// had in the snapshot (so it takes up to ratio / (1 + ratio) of the
+  /// refined value); less where the TSDF's error is noise, not bias.
   double writeback_weight_ratio = 4.0;
+  int bias_rays = 4096;  ///< rays rendered from the TSDF to tell its bias from noise
   /// The weight falls linearly to 0 over this many voxels at the ROI border
   /// (no seam with the unrefined map around it).
   double border_blend_voxels = 2.0;

@@ -59,24 +59,51 @@ class RoiRefiner {
   const std::vector<TrainingRay>& rays() const { return rays_; }
 
   /// Write-back (eq 11): the field's signed distance at every voxel center
-  /// the snapshot had observed and a training sample reached (its grid
-  /// node was updated), truncated to mu, and its color, fused with
-  /// writeback_weight_ratio times the snapshot's weight, fading to 0 at the
-  /// box border.
+  /// the snapshot had observed and a visible training sample came near (in
+  /// front of the first surface or at it), truncated to mu, and its color.
+  /// DESIGN: each is fused with a weight from the evidence, not a constant:
+  /// where the TSDF's renderings disagree with the keyframes only by noise
+  /// (zero-mean residuals), the TSDF, which averaged every frame, is the
+  /// better estimate and the field (trained on a few keyframes, able to fit
+  /// their noise) gets about K/n of the say; where they disagree
+  /// systematically (a bias: eroded thin parts, bled edges) the field gets
+  /// up to writeback_weight_ratio times the TSDF's weight. On the quality
+  /// room a constant ratio of 4 cut precision on a noisy wall patch from
+  /// 100 % to 40 % at 1 cm. The weight fades to 0 at the box border.
   RefineResult result() const;
 
  private:
   double evalDepthL1(std::vector<float>* per_ray) const;
+  void markSeen(const RenderBatch& batch);
+  void measureTsdfBias();
+  float writebackRatio(int x, int y, int z, float snapshot_weight) const;
+
+  /// A sample counts as seen while this much light reaches it.
+  static constexpr float kSeenTransmittance = 0.1f;
 
   ImplicitParams params_;
   NeuralField field_;
   std::vector<TrainingRay> rays_;
   std::vector<float> snapshot_weight_;  ///< per voxel of the box
+  std::vector<Eigen::Vector3f> surface_offset_;  ///< per voxel: to its nearest fused surface
   std::vector<int32_t> eval_rays_;
   // Adam state.
   std::vector<float> grad_, m_, v_;
   std::vector<uint32_t> node_stamp_;
   std::vector<int32_t> touched_;
+  /// Residuals of the TSDF's renderings against the keyframes, pooled per
+  /// cell of kCellVoxels^3 voxels: how much of its error is bias.
+  static constexpr int kCellVoxels = 4;
+  static constexpr int kMinCellRays = 6;
+  struct Cell {
+    double sum = 0, sum_sq = 0;
+    int rays = 0;
+    uint64_t keyframes = 0;  ///< bit (id % 64) per keyframe seen
+  };
+  Eigen::Vector3i cell_dims_ = Eigen::Vector3i::Zero();
+  std::vector<Cell> cells_;
+  std::vector<uint8_t> seen_;  ///< per coarse node (voxel): a visible sample came near
+  Rendering rendering_;
   uint64_t rng_;
   std::vector<double> smoothed_loss_;
   bool finished_ = false;

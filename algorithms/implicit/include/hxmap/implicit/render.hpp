@@ -91,12 +91,17 @@ struct LossTerms {
   int rays = 0, photo_rays = 0, normal_points = 0, reg_points = 0;
 };
 
+/// What a rendering produced besides the loss.
+struct Rendering {
+  std::vector<float> depth;          ///< per ray: composited distance along the ray
+  std::vector<float> transmittance;  ///< per sample: light reaching it (1 = in front of every surface)
+};
+
 /// Renders the batch and evaluates the loss. With `grad` (size of the
 /// field's parameters), adds dL/dparameters and lists touched grid nodes in
-/// `touched`. `rendered_t` (optional) receives each ray's composited depth
-/// (distance along the ray).
+/// `touched`. `rendering` (optional) receives depths and transmittances.
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
                        const ImplicitParams& params, std::vector<float>* grad = nullptr,
-                       std::vector<int32_t>* touched = nullptr, std::vector<float>* rendered_t = nullptr);
+                       std::vector<int32_t>* touched = nullptr, Rendering* rendering = nullptr);
 
 }  // namespace hxmap::alg
