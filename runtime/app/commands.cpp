@@ -83,6 +83,7 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.implicit = c.refine.implicit;
   fp.refine_enabled = c.refine.enabled && c.quality_enabled;
   fp.max_jobs_per_keyframe = c.refine.max_jobs_per_keyframe;
+  fp.min_job_keyframes = c.refine.min_job_keyframes;
   fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
   fp.keyframe_images = c.refine.keyframe_images;
   fp.max_pending_jobs = c.refine.max_pending_jobs;

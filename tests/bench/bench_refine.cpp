@@ -268,6 +268,7 @@ int main(int argc, char** argv) {
     base.implicit = cfg->refine.implicit;
     base.refine_enabled = cfg->refine.enabled;
     base.max_jobs_per_keyframe = cfg->refine.max_jobs_per_keyframe;
+    base.min_job_keyframes = cfg->refine.min_job_keyframes;
     base.refine_cooldown_keyframes = cfg->refine.cooldown_keyframes;
     base.keyframe_images = cfg->refine.keyframe_images;
     base.quality = cfg->quality;

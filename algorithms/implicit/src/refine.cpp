@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <unordered_map>
-#include <cstdio>
-#include <cstdlib>
 
 namespace hxmap::alg {
 
@@ -20,6 +18,7 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
 
   snapshot_weight_.assign(static_cast<size_t>(count.x()) * count.y() * count.z(), 0.0f);
   surface_offset_.assign(snapshot_weight_.size(), Eigen::Vector3f::Zero());
+  snapshot_updates_.assign(snapshot_weight_.size(), 0);
   for (int z = 0; z < count.z(); ++z) {
     for (int y = 0; y < count.y(); ++y) {
       for (int x = 0; x < count.x(); ++x) {
@@ -27,6 +26,7 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
         if (map.voxel(vmin + Eigen::Vector3i(x, y, z), v)) {
           const size_t node = (static_cast<size_t>(z) * count.y() + y) * count.x() + x;
           snapshot_weight_[node] = v.weight;
+          snapshot_updates_[node] = v.stats.updates;
           // Where the voxel's nearest surface is (for the bias lookup): the
           // center moved by its distance against the normal.
           const float* g = &field_.parameters()[node * NeuralField::kCoarseChannels];
@@ -47,7 +47,7 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
   stats_.rays = rays_.size();
   stats_.parameters = np;
   stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) + seen_.size() +
-                        rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * (sizeof(float) + sizeof(Eigen::Vector3f));
+                        rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * (2 * sizeof(float) + sizeof(Eigen::Vector3f));
   stats_.depth_l1_before_m = evalDepthL1(nullptr);
   stats_.depth_l1_after_m = stats_.depth_l1_before_m;
   measureTsdfBias();
@@ -89,7 +89,7 @@ void RoiRefiner::measureTsdfBias() {
   }
 }
 
-float RoiRefiner::writebackRatio(int x, int y, int z, float w0) const {
+float RoiRefiner::writebackRatio(int x, int y, int z) const {
   // Inverse-variance blending of two estimates of the voxel's distance: the
   // TSDF's, with variance sigma^2 / n + b^2 (noise averaged over the n
   // frames fused, plus a bias b averaging cannot remove), and the field's,
@@ -105,13 +105,22 @@ float RoiRefiner::writebackRatio(int x, int y, int z, float w0) const {
   Eigen::Vector3i ci;
   for (int a = 0; a < 3; ++a) ci[a] = std::clamp(floorToInt(at[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
   const Cell& c = cells_[(static_cast<size_t>(ci.z()) * cell_dims_.y() + ci.y()) * cell_dims_.x() + ci.x()];
-  const float n = std::max(w0, 1.0f);
+  // n counts observations: the in-band updates, or the fused weight where
+  // that is larger (a weight sums per-pixel confidences, low for far or
+  // noisy depth; updates leave out the clamped free-space observations of
+  // voxels about mu from the surface). Both are lower bounds.
+  const size_t v = (static_cast<size_t>(z) * n_vox.y() + y) * n_vox.x() + x;
+  const float n = std::max({static_cast<float>(snapshot_updates_[v]), snapshot_weight_[v], 1.0f});
   if (c.rays < kMinCellRays) return std::min(cap, 1.0f / n);  // no evidence of a bias: one keyframe's worth
   const double mean = c.sum / c.rays;
   const double floor = 0.1 * field_.voxelSize();
   const double var = std::max(c.sum_sq / c.rays - mean * mean, floor * floor);
   const double bias_sq = std::max(0.0, mean * mean - var / c.rays);
-  const auto K = static_cast<double>(std::max(1, __builtin_popcountll(c.keyframes)));
+  const int keyframes = __builtin_popcountll(c.keyframes);
+  const auto K = static_cast<double>(std::max(1, keyframes));
+  // A bias seen from one keyframe is indistinguishable from that
+  // keyframe's own error: it counts from two keyframes on.
+  if (keyframes < 2) return std::min(cap, static_cast<float>(K / n));
   return std::min(cap, static_cast<float>(K / n + K * bias_sq / var));
 }
 
@@ -241,7 +250,7 @@ RefineResult RoiRefiner::result() const {
         const float blend = std::min(1.0f, static_cast<float>(d) / ramp);
         if (blend <= 0.0f) continue;
         voxels.push_back(vmin + Eigen::Vector3i(x, y, z));
-        weights.push_back(writebackRatio(x, y, z, w0) * w0 * blend);
+        weights.push_back(writebackRatio(x, y, z) * w0 * blend);
       }
     }
   }

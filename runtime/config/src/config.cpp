@@ -144,6 +144,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.section("refine");
   v.boolean("enabled", r.enabled);
   v.integer("max_jobs_per_keyframe", r.max_jobs_per_keyframe, 0, 64);
+  v.integer("min_job_keyframes", r.min_job_keyframes, 1, 64);
   v.integer("cooldown_keyframes", r.cooldown_keyframes, 0, 1 << 20);
   v.integer("keyframe_images", r.keyframe_images, 1, 1024);
   v.integer("max_pending_jobs", r.max_pending_jobs, 1, 1024);

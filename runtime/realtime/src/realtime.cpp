@@ -201,7 +201,6 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
     std::unique_ptr<alg::RoiRefiner> refiner;
     RefineOutcome outcome;
     outcome.job_id = job.id;
-    double train_ms = 0;
     while (!workers_stop.load()) {
       const uint64_t epoch = sched.frameEpoch();
       const Verdict v = sched.admitSlice(ticket, now_ns());
@@ -214,28 +213,25 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
         return;
       }
       const int64_t s0 = now_ns();
-      const char* what = "refine";
-      bool done = false;
+      enum { kSetup, kTrain, kWriteBack } phase = kTrain;
       if (!refiner) {
         refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, implicit);
-        what = "refine setup";
-      } else if (!refiner->finished() && train_ms < implicit.time_budget_ms) {
+        phase = kSetup;
+      } else if (!refiner->finished() && outcome.train_ms < implicit.time_budget_ms) {
         refiner->iterate(std::max(1, implicit.slice_iterations));
       } else {
         outcome.out_of_time = !refiner->finished();
         outcome.result = refiner->result();
-        what = "refine write-back";
-        done = true;
+        phase = kWriteBack;
       }
       const int64_t s1 = now_ns();
       const double ms = static_cast<double>(s1 - s0) * 1e-6;
       sched.sliceFinished(ticket, ms);
       refine_slices.fetch_add(1);
-      if (trace) trace->add({what, "background", s0, s1 - s0, 3 + w, -1, -1});
-      if (std::string(what) == "refine setup") outcome.setup_ms = ms;
-      else if (!done) outcome.train_ms += ms, train_ms += ms;
-      else outcome.result_ms = ms;
-      if (done) {
+      static const char* const kNames[] = {"refine setup", "refine", "refine write-back"};
+      if (trace) trace->add({kNames[phase], "background", s0, s1 - s0, 3 + w, -1, -1});
+      (phase == kSetup ? outcome.setup_ms : phase == kTrain ? outcome.train_ms : outcome.result_ms) += ms;
+      if (phase == kWriteBack) {
         sched.jobFinished(ticket);
         refine_done.fetch_add(1);
         if (!outcome_rings[static_cast<size_t>(w)]->tryPush(std::move(outcome))) outcomes_full.fetch_add(1);

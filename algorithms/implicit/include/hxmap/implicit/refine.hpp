@@ -76,7 +76,7 @@ class RoiRefiner {
   double evalDepthL1(std::vector<float>* per_ray) const;
   void markSeen(const RenderBatch& batch);
   void measureTsdfBias();
-  float writebackRatio(int x, int y, int z, float snapshot_weight) const;
+  float writebackRatio(int x, int y, int z) const;
 
   /// A sample counts as seen while this much light reaches it.
   static constexpr float kSeenTransmittance = 0.1f;
@@ -85,6 +85,7 @@ class RoiRefiner {
   NeuralField field_;
   std::vector<TrainingRay> rays_;
   std::vector<float> snapshot_weight_;  ///< per voxel of the box
+  std::vector<uint32_t> snapshot_updates_;  ///< per voxel: observations fused
   std::vector<Eigen::Vector3f> surface_offset_;  ///< per voxel: to its nearest fused surface
   std::vector<int32_t> eval_rays_;
   // Adam state.

@@ -64,6 +64,7 @@ struct RuntimeConfig {
 struct RefineConfig {
   bool enabled = true;
   int max_jobs_per_keyframe = 2;
+  int min_job_keyframes = 2;
   int cooldown_keyframes = 10;
   int keyframe_images = 24;
   int max_pending_jobs = 8;

@@ -34,6 +34,9 @@ struct FrontendParams {
   /// (applyRefinement). Needs quality_enabled.
   bool refine_enabled = true;
   int max_jobs_per_keyframe = 2;
+  /// An ROI seen by fewer kept keyframes is not refined (one view gives no
+  /// multi-view evidence: the field would only copy that view).
+  int min_job_keyframes = 2;
   /// A block refined (or submitted) is not submitted again for this many
   /// keyframes; an ROI goes only when most of its blocks are free.
   int refine_cooldown_keyframes = 10;
