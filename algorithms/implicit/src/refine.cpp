@@ -35,7 +35,7 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
       }
     }
   }
-  const size_t n_eval = std::min<size_t>(rays_.size(), 1024);
+  const size_t n_eval = std::min<size_t>(rays_.size(), 256);
   for (size_t i = 0; i < n_eval; ++i) eval_rays_.push_back(static_cast<int32_t>(i * rays_.size() / n_eval));
 
   const size_t np = field_.parameters().size();
@@ -48,22 +48,38 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
   stats_.parameters = np;
   stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) + seen_.size() +
                         rays_.size() * sizeof(TrainingRay) + snapshot_weight_.size() * (2 * sizeof(float) + sizeof(Eigen::Vector3f));
-  stats_.depth_l1_before_m = evalDepthL1(nullptr);
-  stats_.depth_l1_after_m = stats_.depth_l1_before_m;
-  measureTsdfBias();
+  const Eigen::Vector3i nv = field_.voxelCount();
+  cell_dims_ = (nv + Eigen::Vector3i::Constant(kCellVoxels - 1)) / kCellVoxels;
+  cells_.assign(static_cast<size_t>(cell_dims_.x()) * cell_dims_.y() * cell_dims_.z(), {});
+  const size_t m = std::min<size_t>(rays_.size(), static_cast<size_t>(std::max(1, params_.bias_rays)));
+  for (size_t i = 0; i < m; ++i) bias_rays_.push_back(static_cast<int32_t>(i * rays_.size() / m));
   finished_ = rays_.empty();
 }
 
-void RoiRefiner::measureTsdfBias() {
+bool RoiRefiner::prepareStep() {
+  // DESIGN: measuring the TSDF (its depth error and its bias per cell)
+  // renders a few thousand rays; done in steps of kPrepareRays so that no
+  // slice of a job costs much more than a training iteration and the
+  // scheduler can fit it into a frame's slack.
+  if (prepared_) return true;
+  if (!measured_before_) {
+    stats_.depth_l1_before_m = evalDepthL1(nullptr);
+    stats_.depth_l1_after_m = stats_.depth_l1_before_m;
+    measured_before_ = true;
+  } else {
+    const size_t end = std::min(bias_rays_.size(), prep_next_ + kPrepareRays);
+    measureTsdfBias(std::vector<int32_t>(bias_rays_.begin() + static_cast<std::ptrdiff_t>(prep_next_),
+                                         bias_rays_.begin() + static_cast<std::ptrdiff_t>(end)));
+    prep_next_ = end;
+  }
+  prepared_ = measured_before_ && prep_next_ >= bias_rays_.size();
+  return prepared_;
+}
+
+void RoiRefiner::measureTsdfBias(const std::vector<int32_t>& which) {
   // The untrained field is the TSDF: render an even spread of the rays and
   // pool each cell's residuals D_tsdf - t_obs.
-  const Eigen::Vector3i n = field_.voxelCount();
-  cell_dims_ = (n + Eigen::Vector3i::Constant(kCellVoxels - 1)) / kCellVoxels;
-  cells_.assign(static_cast<size_t>(cell_dims_.x()) * cell_dims_.y() * cell_dims_.z(), {});
-  if (rays_.empty()) return;
-  const size_t m = std::min<size_t>(rays_.size(), static_cast<size_t>(std::max(1, params_.bias_rays)));
-  std::vector<int32_t> which(m);
-  for (size_t i = 0; i < m; ++i) which[i] = static_cast<int32_t>(i * rays_.size() / m);
+  if (which.empty()) return;
   ImplicitParams p = params_;
   p.regularizer_points = 0;
   uint64_t rng = 2;
@@ -163,6 +179,10 @@ bool RoiRefiner::iterate(int n) {
   const size_t grid_end = field_.gridParameters();
   const size_t coarse_nodes = field_.coarseGrid().nodeCount();
   const int cc = NeuralField::kCoarseChannels;
+  if (!finished_ && !prepared_) {  // a preparation step takes the place of this call's iterations
+    prepareStep();
+    return !finished_;
+  }
   for (int it = 0; it < n && !finished_; ++it) {
     const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_);
     touched_.clear();
@@ -205,7 +225,9 @@ bool RoiRefiner::iterate(int n) {
   return !finished_;
 }
 
-RefineResult RoiRefiner::result() const {
+RefineResult RoiRefiner::result() {
+  while (!rays_.empty() && !prepareStep()) {
+  }
   RefineResult out;
   out.stats = stats_;
   std::vector<float> rendered;

@@ -196,12 +196,17 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   // Shed (no slack for too long) or stopped: the job is dropped, the map
   // keeps its fused values.
   auto runJob = [&](int w, RefineJob& job) {
-    JobTicket ticket{"refine", 10.0};
+    JobTicket ticket{"refine setup", 10.0};
     sched.jobSubmitted(ticket, now_ns());
     std::unique_ptr<alg::RoiRefiner> refiner;
     RefineOutcome outcome;
     outcome.job_id = job.id;
     while (!workers_stop.load()) {
+      // Each phase's slices have their own cost model: a setup slice costs
+      // several iterations, and one cost for both would keep iterations out
+      // of slack they fit in.
+      const bool training = refiner && !refiner->finished() && outcome.train_ms < implicit.time_budget_ms;
+      ticket.kind = !refiner ? "refine setup" : training ? "refine" : "refine write-back";
       const uint64_t epoch = sched.frameEpoch();
       const Verdict v = sched.admitSlice(ticket, now_ns());
       if (v == Verdict::kWait) {
@@ -217,7 +222,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       if (!refiner) {
         refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, implicit);
         phase = kSetup;
-      } else if (!refiner->finished() && outcome.train_ms < implicit.time_budget_ms) {
+      } else if (training) {
         refiner->iterate(std::max(1, implicit.slice_iterations));
       } else {
         outcome.out_of_time = !refiner->finished();
@@ -228,8 +233,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       const double ms = static_cast<double>(s1 - s0) * 1e-6;
       sched.sliceFinished(ticket, ms);
       refine_slices.fetch_add(1);
-      static const char* const kNames[] = {"refine setup", "refine", "refine write-back"};
-      if (trace) trace->add({kNames[phase], "background", s0, s1 - s0, 3 + w, -1, -1});
+      if (trace) trace->add({ticket.kind.c_str(), "background", s0, s1 - s0, 3 + w, -1, -1});
       (phase == kSetup ? outcome.setup_ms : phase == kTrain ? outcome.train_ms : outcome.result_ms) += ms;
       if (phase == kWriteBack) {
         sched.jobFinished(ticket);

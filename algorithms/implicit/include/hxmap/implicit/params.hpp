@@ -50,7 +50,7 @@ struct ImplicitParams {
   /// had in the snapshot (so it takes up to ratio / (1 + ratio) of the
   /// refined value); less where the TSDF's error is noise, not bias.
   double writeback_weight_ratio = 4.0;
-  int bias_rays = 4096;  ///< rays rendered from the TSDF to tell its bias from noise
+  int bias_rays = 2048;  ///< rays rendered from the TSDF to tell its bias from noise
   /// The weight falls linearly to 0 over this many voxels at the ROI border
   /// (no seam with the unrefined map around it).
   double border_blend_voxels = 2.0;

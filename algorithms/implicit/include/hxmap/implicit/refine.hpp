@@ -50,7 +50,9 @@ class RoiRefiner {
              const ImplicitParams& params);
 
   /// Runs up to n iterations; false once finished (converged, iteration
-  /// cap, or nothing to learn from).
+  /// cap, or nothing to learn from). The first calls each run one step of
+  /// preparation instead (rendering the TSDF to measure its error and
+  /// bias), each about as costly as an iteration.
   bool iterate(int n);
   bool finished() const { return finished_; }
   int iterations() const { return stats_.iterations; }
@@ -58,6 +60,7 @@ class RoiRefiner {
   const NeuralField& field() const { return field_; }
   const std::vector<TrainingRay>& rays() const { return rays_; }
 
+  /// (Finishes the preparation first if the job was stopped before.)
   /// Write-back (eq 11): the field's signed distance at every voxel center
   /// the snapshot had observed and a visible training sample came near (in
   /// front of the first surface or at it), truncated to mu, and its color.
@@ -70,12 +73,18 @@ class RoiRefiner {
   /// up to writeback_weight_ratio times the TSDF's weight. On the quality
   /// room a constant ratio of 4 cut precision on a noisy wall patch from
   /// 100 % to 40 % at 1 cm. The weight fades to 0 at the box border.
-  RefineResult result() const;
+  RefineResult result();
 
  private:
   double evalDepthL1(std::vector<float>* per_ray) const;
   void markSeen(const RenderBatch& batch);
-  void measureTsdfBias();
+  void measureTsdfBias(const std::vector<int32_t>& which);
+  bool prepareStep();  ///< true once prepared
+
+  static constexpr size_t kPrepareRays = 192;
+  std::vector<int32_t> bias_rays_;
+  size_t prep_next_ = 0;
+  bool prepared_ = false, measured_before_ = false;
   float writebackRatio(int x, int y, int z) const;
 
   /// A sample counts as seen while this much light reaches it.
