@@ -115,7 +115,9 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   // sigma_Neural reached the quality map for the blocks the job rendered.
   ASSERT_FALSE(o.result.neural_sigma.empty());
   const alg::BlockQuality* q = fe.quality().find(o.result.neural_sigma.front().first);
-  if (q) EXPECT_GE(q->sigma_neural_m, 0.0f);
+  if (q) {
+    EXPECT_GE(q->sigma_neural_m, 0.0f);
+  }
 }
 
 TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {
