@@ -306,7 +306,7 @@ int main(int argc, char** argv) {
 
   // Replica slice: depth L1 inside ROIs before and after write-back.
   if (argc > 2 && std::string(argv[2]) == "-") return 0;
-  const std::string replica = argc > 2 ? argv[2] : std::string(HXMAP_SHARED_DATA) + "/replica/room0_first20";
+  const std::string replica = argc > 2 ? argv[2] : std::string(HXMAP_SHARED_DATA) + "/replica/room0_first20/room0";
   auto ds = drv::Dataset::open(replica);
   if (!ds) {
     std::fprintf(stderr, "%s\n", ds.message().c_str());
