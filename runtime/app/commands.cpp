@@ -72,24 +72,6 @@ std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsPar
   return out;
 }
 
-FrontendParams frontendParams(const HxmapConfig& c) {
-  FrontendParams fp;
-  fp.preprocess = c.preprocess;
-  fp.tsdf = c.tsdf;
-  fp.raycast = c.raycast;
-  fp.tracking = c.tracking;
-  fp.quality = c.quality;
-  fp.quality_enabled = c.quality_enabled;
-  fp.implicit = c.refine.implicit;
-  fp.refine_enabled = c.refine.enabled && c.quality_enabled;
-  fp.max_jobs_per_keyframe = c.refine.max_jobs_per_keyframe;
-  fp.min_job_keyframes = c.refine.min_job_keyframes;
-  fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
-  fp.keyframe_images = c.refine.keyframe_images;
-  fp.max_pending_jobs = c.refine.max_pending_jobs;
-  return fp;
-}
-
 /// What the refinement jobs of a run did, for the summary.
 struct RefineTally {
   std::vector<double> job_ms, iteration_ms, setup_ms;
@@ -540,6 +522,24 @@ int configCommand(const std::string& config) {
   }
   std::fputs(dumpConfig(*c).c_str(), stdout);
   return 0;
+}
+
+FrontendParams frontendParams(const HxmapConfig& c) {
+  FrontendParams fp;
+  fp.preprocess = c.preprocess;
+  fp.tsdf = c.tsdf;
+  fp.raycast = c.raycast;
+  fp.tracking = c.tracking;
+  fp.quality = c.quality;
+  fp.quality_enabled = c.quality_enabled;
+  fp.implicit = c.refine.implicit;
+  fp.refine_enabled = c.refine.enabled && c.quality_enabled;
+  fp.max_jobs_per_keyframe = c.refine.max_jobs_per_keyframe;
+  fp.min_job_keyframes = c.refine.min_job_keyframes;
+  fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
+  fp.keyframe_images = c.refine.keyframe_images;
+  fp.max_pending_jobs = c.refine.max_pending_jobs;
+  return fp;
 }
 
 }  // namespace hxmap::rt

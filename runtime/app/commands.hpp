@@ -4,6 +4,9 @@
 
 #include <string>
 
+#include "hxmap/config/config.hpp"
+#include "hxmap/frontend/frontend.hpp"
+
 namespace hxmap::rt {
 
 struct RunOptions {
@@ -42,5 +45,8 @@ struct EvalOptions {
 int evalCommand(const EvalOptions& options);
 
 int configCommand(const std::string& config);
+
+/// The frontend's parameters from a configuration (what `hxmap run` uses).
+FrontendParams frontendParams(const HxmapConfig& config);
 
 }  // namespace hxmap::rt

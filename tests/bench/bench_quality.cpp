@@ -30,6 +30,7 @@
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "quality_room_sequence.hpp"
 
 using namespace hxmap;
 
@@ -93,41 +94,11 @@ std::unordered_set<uint64_t> wellObserved(const drv::SyntheticScene& scene, cons
 
 int main(int argc, char** argv) {
   const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
-  drv::SyntheticParams sp;
-  sp.frames = 240;
-  sp.trajectory = "inspect";
-  std::vector<RgbdFrame> frames;
-  Trajectory gt;
-  alg::PinholeCamera cam = sp.camera;
-  if (argc > 1 && std::string(argv[1]) != "-") {
-    auto ds = drv::Dataset::open(argv[1]);
-    if (!ds) {
-      std::fprintf(stderr, "%s\n", ds.message().c_str());
-      return 2;
-    }
-    cam = (*ds)->camera();
-    gt = (*ds)->groundTruth();
-    for (size_t i = 0; i < (*ds)->size(); ++i) {
-      auto f = (*ds)->load(i);
-      if (!f) {
-        std::fprintf(stderr, "%s\n", f.message().c_str());
-        return 2;
-      }
-      frames.push_back(std::move(*f));
-    }
-  } else {
-    std::printf("rendering the quality room (%d frames, inspect trajectory) ...\n", sp.frames);
-    gt = drv::syntheticTrajectory(sp);
-    for (int i = 0; i < sp.frames; ++i) {
-      const auto r = drv::renderFrame(scene, cam, gt[i].T_world_cam, sp, i);
-      RgbdFrame f;
-      f.stamp_ns = gt[i].stamp_ns;
-      f.seq = static_cast<uint64_t>(i);
-      f.rgb = r.rgb;
-      f.depth = r.depth;
-      frames.push_back(std::move(f));
-    }
-  }
+  test::BenchSequence seq;
+  if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq)) return 2;
+  const std::vector<RgbdFrame>& frames = seq.frames;
+  const Trajectory& gt = seq.ground_truth;
+  const alg::PinholeCamera& cam = seq.camera;
 
   rt::FrontendParams params;
   rt::Frontend fe(cam, params);

@@ -16,7 +16,7 @@
 // 3. Time per ROI job and per iteration, memory per ROI.
 //
 //   bench_refine [quality_sequence_dir|-] [replica_dir|-] [config.yaml]
-// The configuration's refine section (and tsdf truncation ratio) applies;
+// The configuration applies, except voxel size and truncation (4 voxels);
 // HXMAP_BENCH_VOXELS="0.02" limits the voxel sizes. Prints numbers;
 // asserts nothing.
 #include <algorithm>
@@ -28,12 +28,13 @@
 #include <string>
 #include <vector>
 
-#include "hxmap/config/config.hpp"
+#include "commands.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/triangle_bvh.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "quality_room_sequence.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/raycast.hpp"
 
@@ -218,46 +219,18 @@ void printJobs(const HybridRun& r) {
 int main(int argc, char** argv) {
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // results as they come, also into a file
   const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
-  drv::SyntheticParams sp;
-  sp.frames = 240;
-  sp.trajectory = "inspect";
-  std::vector<RgbdFrame> frames;
-  Trajectory gt;
-  alg::PinholeCamera cam = sp.camera;
-  if (argc > 1 && std::string(argv[1]) != "-") {
-    auto ds = drv::Dataset::open(argv[1]);
-    if (!ds) {
-      std::fprintf(stderr, "%s\n", ds.message().c_str());
-      return 2;
-    }
-    cam = (*ds)->camera();
-    gt = (*ds)->groundTruth();
-    for (size_t i = 0; i < (*ds)->size(); ++i) {
-      auto f = (*ds)->load(i);
-      if (!f) {
-        std::fprintf(stderr, "%s\n", f.message().c_str());
-        return 2;
-      }
-      frames.push_back(std::move(*f));
-    }
-  } else {
-    std::fprintf(stderr, "rendering the quality room (%d frames, inspect trajectory) ...\n", sp.frames);
-    gt = drv::syntheticTrajectory(sp);
-    for (int i = 0; i < sp.frames; ++i) {
-      const auto r = drv::renderFrame(scene, cam, gt[i].T_world_cam, sp, i);
-      RgbdFrame f;
-      f.stamp_ns = gt[i].stamp_ns;
-      f.seq = static_cast<uint64_t>(i);
-      f.rgb = r.rgb;
-      f.depth = r.depth;
-      frames.push_back(std::move(f));
-    }
-  }
+  test::BenchSequence seq;
+  if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq)) return 2;
+  const std::vector<RgbdFrame>& frames = seq.frames;
+  const Trajectory& gt = seq.ground_truth;
+  const alg::PinholeCamera& cam = seq.camera;
   const alg::TriangleMesh gt_mesh = scene.mesh();
   alg::MeshMetricsParams mp;
   mp.point_to_point = false;
   const alg::ObservedBy observed{cam, gt, 4.0};
 
+  // A configuration's parameters (defaults without one); voxel size and
+  // truncation are the benchmark's.
   rt::FrontendParams base;
   if (argc > 3) {
     auto cfg = rt::loadConfig(argv[3]);
@@ -265,13 +238,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "%s\n", cfg.message().c_str());
       return 2;
     }
-    base.implicit = cfg->refine.implicit;
-    base.refine_enabled = cfg->refine.enabled;
-    base.max_jobs_per_keyframe = cfg->refine.max_jobs_per_keyframe;
-    base.min_job_keyframes = cfg->refine.min_job_keyframes;
-    base.refine_cooldown_keyframes = cfg->refine.cooldown_keyframes;
-    base.keyframe_images = cfg->refine.keyframe_images;
-    base.quality = cfg->quality;
+    base = rt::frontendParams(*cfg);
   }
   std::vector<double> voxels{0.02, 0.01};
   if (const char* v = std::getenv("HXMAP_BENCH_VOXELS")) voxels = {std::atof(v)};

@@ -80,12 +80,8 @@ void RoiRefiner::measureTsdfBias(const std::vector<int32_t>& which) {
   // The untrained field is the TSDF: render an even spread of the rays and
   // pool each cell's residuals D_tsdf - t_obs.
   if (which.empty()) return;
-  ImplicitParams p = params_;
-  p.regularizer_points = 0;
-  uint64_t rng = 2;
-  const RenderBatch b = sampleBatch(field_, rays_, which, p, false, rng);
   Rendering rendering;
-  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
+  const RenderBatch b = renderRays(which, rendering);
   const float vs = field_.voxelSize();
   for (size_t i = 0; i < b.rays.size(); ++i) {
     const TrainingRay& r = rays_[static_cast<size_t>(b.rays[i])];
@@ -127,27 +123,32 @@ float RoiRefiner::writebackRatio(int x, int y, int z) const {
   // voxels about mu from the surface). Both are lower bounds.
   const size_t v = (static_cast<size_t>(z) * n_vox.y() + y) * n_vox.x() + x;
   const float n = std::max({static_cast<float>(snapshot_updates_[v]), snapshot_weight_[v], 1.0f});
-  if (c.rays < kMinCellRays) return std::min(cap, 1.0f / n);  // no evidence of a bias: one keyframe's worth
+  // Without evidence of a bias (too few rays, or one keyframe: a bias seen
+  // from one keyframe is indistinguishable from its own error) the field
+  // counts as one keyframe's worth.
+  const int keyframes = __builtin_popcountll(c.keyframes);
+  if (c.rays < kMinCellRays || keyframes < 2) return std::min(cap, 1.0f / n);
   const double mean = c.sum / c.rays;
   const double floor = 0.1 * field_.voxelSize();
   const double var = std::max(c.sum_sq / c.rays - mean * mean, floor * floor);
   const double bias_sq = std::max(0.0, mean * mean - var / c.rays);
-  const int keyframes = __builtin_popcountll(c.keyframes);
-  const auto K = static_cast<double>(std::max(1, keyframes));
-  // A bias seen from one keyframe is indistinguishable from that
-  // keyframe's own error: it counts from two keyframes on.
-  if (keyframes < 2) return std::min(cap, static_cast<float>(K / n));
+  const auto K = static_cast<double>(keyframes);
   return std::min(cap, static_cast<float>(K / n + K * bias_sq / var));
+}
+
+RenderBatch RoiRefiner::renderRays(const std::vector<int32_t>& which, Rendering& rendering) const {
+  ImplicitParams p = params_;
+  p.regularizer_points = 0;
+  uint64_t rng = 1;  // unused: no jitter, no random rays or points
+  RenderBatch b = sampleBatch(field_, rays_, which, p, false, rng);
+  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
+  return b;
 }
 
 double RoiRefiner::evalDepthL1(std::vector<float>* per_ray) const {
   if (eval_rays_.empty()) return 0.0;
-  ImplicitParams p = params_;
-  p.regularizer_points = 0;
-  uint64_t rng = 1;
-  const RenderBatch b = sampleBatch(field_, rays_, eval_rays_, p, false, rng);
   Rendering rendering;
-  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
+  const RenderBatch b = renderRays(eval_rays_, rendering);
   double sum = 0;
   for (size_t i = 0; i < b.rays.size(); ++i) {
     sum += std::abs(rendering.depth[i] - rays_[static_cast<size_t>(b.rays[i])].t_obs);

@@ -182,6 +182,21 @@ cv::Mat computeNormals(const cv::Mat& vertex, const PreprocessParams& p) {
   return normal;
 }
 
+cv::Mat averageDepth2x2(const cv::Mat& depth) {
+  cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F, cv::Scalar(0.0f));
+  for (int v = 0; v < out.rows; ++v) {
+    const float* r0 = depth.ptr<float>(2 * v);
+    const float* r1 = depth.ptr<float>(2 * v + 1);
+    float* o = out.ptr<float>(v);
+    for (int u = 0; u < out.cols; ++u) {
+      const float a = r0[2 * u], b = r0[2 * u + 1], c = r1[2 * u], d = r1[2 * u + 1];
+      const float lo = std::min({a, b, c, d}), hi = std::max({a, b, c, d});
+      if (lo > 0.0f && hi - lo <= 0.03f * lo) o[u] = 0.25f * (a + b + c + d);
+    }
+  }
+  return out;
+}
+
 cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& p) {
   cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F, cv::Scalar(0));
   for (int v = 0; v < out.rows; ++v) {

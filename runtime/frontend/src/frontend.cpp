@@ -137,28 +137,6 @@ void Frontend::scoreKeyframe(FrameResult& r) {
   r.rois = rois_.size();
 }
 
-namespace {
-// The raw depth (what fusion reads) at half resolution: the mean of each
-// 2x2 block whose four depths agree within 3 %, else 0. DESIGN: refinement
-// trains on the measurements fusion averaged, not on the denoised pyramid:
-// on the quality room's noisy patch (3.5 cm noise) the denoised level sat
-// 2.5 cm from the fused surface, a difference the field then "corrected".
-cv::Mat halveDepth(const cv::Mat& depth) {
-  cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F, cv::Scalar(0.0f));
-  for (int v = 0; v < out.rows; ++v) {
-    const float* r0 = depth.ptr<float>(2 * v);
-    const float* r1 = depth.ptr<float>(2 * v + 1);
-    float* o = out.ptr<float>(v);
-    for (int u = 0; u < out.cols; ++u) {
-      const float a = r0[2 * u], b = r0[2 * u + 1], c = r1[2 * u], d = r1[2 * u + 1];
-      const float lo = std::min({a, b, c, d}), hi = std::max({a, b, c, d});
-      if (lo > 0.0f && hi - lo <= 0.03f * lo) o[u] = 0.25f * (a + b + c + d);
-    }
-  }
-  return out;
-}
-}  // namespace
-
 void Frontend::keepKeyframeImages(uint32_t id) {
   // At half resolution (what refinement samples: 5.7 mm pixels at 3 m,
   // below a 1 cm voxel), copied: the frame's buffers are not ours to keep.
@@ -169,7 +147,9 @@ void Frontend::keepKeyframeImages(uint32_t id) {
   k.id = id;
   k.camera = l.camera;
   k.T_world_cam = T_last_.cast<float>();
-  k.depth = level == 1 ? halveDepth(last_frame_.depth_m) : l.depth.clone();
+  // DESIGN: refinement trains on the measurements fusion averaged, not on
+  // the denoised pyramid (see averageDepth2x2).
+  k.depth = level == 1 ? alg::averageDepth2x2(last_frame_.depth_m) : l.depth.clone();
   if (!l.normal.empty()) k.normal = l.normal.clone();
   if (last_frame_.has_color && !last_frame_.rgb.empty()) {
     cv::resize(last_frame_.rgb, k.rgb, l.depth.size(), 0, 0, cv::INTER_AREA);

@@ -93,6 +93,18 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   const alg::ImplicitParams implicit = frontend.params().implicit;
   SpscRing<PoseCorrection> corrections(64);
   uint64_t patches_applied = 0, corrections_applied = 0;  // frontend thread
+  // Refinement outcomes into the map: the frontend thread between frames,
+  // the calling thread once the threads are joined.
+  auto applyOutcomes = [&] {
+    for (auto& ring : outcome_rings) {
+      RefineOutcome outcome;
+      while (ring->tryPop(outcome)) {
+        const alg::PatchStats ps = frontend.applyRefinement(outcome);
+        patches_applied += ps.applied > 0;
+        voxels_written += ps.applied;
+      }
+    }
+  };
   std::atomic<uint64_t> keyframes_pushed{0};
   std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
   std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
@@ -132,14 +144,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
         continue;
       }
       // Between frames: what background threads sent back.
-      for (auto& ring : outcome_rings) {
-        RefineOutcome outcome;
-        while (ring->tryPop(outcome)) {
-          const alg::PatchStats ps = frontend.applyRefinement(outcome);
-          patches_applied += ps.applied > 0;
-          voxels_written += ps.applied;
-        }
-      }
+      applyOutcomes();
       PoseCorrection correction;
       while (corrections.tryPop(correction)) corrections_applied += frontend.applyPoseCorrection(correction);
       const int64_t start = now_ns();
@@ -335,14 +340,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   feedback.join();
   // Outcomes that arrived after the last frame: applied now (the threads
   // are joined), so no finished refinement is lost.
-  for (auto& ring : outcome_rings) {
-    RefineOutcome outcome;
-    while (ring->tryPop(outcome)) {
-      const alg::PatchStats ps = frontend.applyRefinement(outcome);
-      patches_applied += ps.applied > 0;
-      voxels_written += ps.applied;
-    }
-  }
+  applyOutcomes();
   if (tty && options.status_interval_s > 0) std::fputc('\n', stderr);
 
   stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();

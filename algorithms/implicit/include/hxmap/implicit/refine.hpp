@@ -76,6 +76,8 @@ class RoiRefiner {
   RefineResult result();
 
  private:
+  /// The rays at stratum centers, no regularizer points (measurements).
+  RenderBatch renderRays(const std::vector<int32_t>& which, Rendering& rendering) const;
   double evalDepthL1(std::vector<float>* per_ray) const;
   void markSeen(const RenderBatch& batch);
   void measureTsdfBias(const std::vector<int32_t>& which);
