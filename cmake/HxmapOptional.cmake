@@ -5,12 +5,26 @@ set(HXMAP_SUMMARY_LINES "")
 
 # Parts marked "(not implemented yet)" are detected so that the build is
 # ready for them; their code has not landed.
+# The option follows detection (a package installed after the first
+# configure turns its part on) until the user sets it to something else.
 macro(hxmap_optional var description found reason)
   if(${found})
-    option(${var} "${description}" ON)
+    set(_auto ON)
   else()
-    option(${var} "${description}" OFF)
+    set(_auto OFF)
   endif()
+  set(_user_set FALSE)
+  if(DEFINED ${var} AND DEFINED ${var}_AUTO)
+    if((${var} AND NOT ${var}_AUTO) OR (NOT ${var} AND ${var}_AUTO))
+      set(_user_set TRUE)
+    endif()
+  elseif(DEFINED ${var})
+    set(_user_set TRUE)  # given on the first configure's command line
+  endif()
+  if(NOT _user_set)
+    set(${var} ${_auto} CACHE BOOL "${description}" FORCE)
+  endif()
+  set(${var}_AUTO ${_auto} CACHE INTERNAL "")
   if(${var} AND NOT ${found})
     message(FATAL_ERROR "${var}=ON but ${reason}")
   endif()
@@ -36,8 +50,16 @@ hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver (not implemented yet)" 
 hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver (not implemented yet)" LIBCAMERA_FOUND
   "libcamera not found (apt install libcamera-dev)")
 find_package(CycloneDDS QUIET)
-hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing (not implemented yet)" CycloneDDS_FOUND
-  "CycloneDDS not found (apt install cyclonedds-dev cyclonedds-tools)")
+find_program(HXMAP_IDLC idlc)
+set(_dds_found FALSE)
+if(CycloneDDS_FOUND AND HXMAP_IDLC)
+  set(_dds_found TRUE)
+endif()
+hxmap_optional(HXMAP_WITH_DDS "Cyclone DDS publishing and hxmap echo" _dds_found
+  "Cyclone DDS or its idlc not found (apt install cyclonedds-dev cyclonedds-tools)")
+if(HXMAP_WITH_DDS)
+  enable_language(C)  # idlc generates C
+endif()
 find_package(TBB QUIET)
 hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
   "TBB not found (apt install libtbb-dev)")

@@ -23,6 +23,10 @@
 #include "parallel.hpp"
 #include "progress.hpp"
 #include "sd_notify.hpp"
+#include "stop_signals.hpp"
+#ifdef HXMAP_HAVE_DDS
+#include "dds_glue.hpp"
+#endif
 
 namespace fs = std::filesystem;
 
@@ -111,32 +115,6 @@ std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, d
       100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
 }
 
-// SIGINT/SIGTERM ask the run to stop: outputs for what was processed are
-// still written and the exit code stays 0.
-std::atomic<bool> g_stop{false};
-extern "C" void onStopSignal(int) { g_stop.store(true); }
-
-class StopSignals {
- public:
-  StopSignals() {
-    g_stop.store(false);
-    struct sigaction sa {};
-    sa.sa_handler = onStopSignal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGINT, &sa, &old_int_);
-    sigaction(SIGTERM, &sa, &old_term_);
-  }
-  ~StopSignals() {
-    sigaction(SIGINT, &old_int_, nullptr);
-    sigaction(SIGTERM, &old_term_, nullptr);
-  }
-  StopSignals(const StopSignals&) = delete;
-  StopSignals& operator=(const StopSignals&) = delete;
-
- private:
-  struct sigaction old_int_ {}, old_term_ {};
-};
-
 }  // namespace
 
 int runCommand(const RunOptions& o) {
@@ -175,6 +153,24 @@ int runCommand(const RunOptions& o) {
   const ParallelFor parallel = makeParallelFor(c.runtime.threads);
   FrontendParams fp = frontendParams(c);
   Frontend frontend(cam, fp, parallel);
+#ifdef HXMAP_HAVE_DDS
+  std::unique_ptr<dds::Publisher> publisher;
+  if (o.dds || c.dds.enabled) {
+    auto started = dds::Publisher::start(publisherParams(c));
+    if (!started) {
+      spdlog::error("{}", started.message());
+      return 2;
+    }
+    publisher = std::move(*started);
+    spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix, c.dds.domain_id);
+  }
+#else
+  if (o.dds || c.dds.enabled) {
+    spdlog::error("dds: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
+                  "configure and build again)");
+    return 2;
+  }
+#endif
 
   // Frames to process.
   std::vector<size_t> frames;
@@ -200,6 +196,7 @@ int runCommand(const RunOptions& o) {
   size_t bad_frames = 0, tracked = 0;
   std::string first_error, realtime_report;
   RefineTally refine;
+  RunCounters end_counters;  // for the last health message
   bool stopped = false;
   StopSignals signals;
   const auto t_start = std::chrono::steady_clock::now();
@@ -250,6 +247,13 @@ int runCommand(const RunOptions& o) {
     ro.refine_workers = c.runtime.refine_workers;
     ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
     ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+#ifdef HXMAP_HAVE_DDS
+    if (publisher) {
+      ro.on_frame = [&](const FrameResult& r, const Frontend& f, const RunCounters& counters) {
+        publisher->onFrame(r, f.map(), f.trajectory(), counters);
+      };
+    }
+#endif
     // Under systemd (Type=notify): ready once the frames are loaded, then a
     // watchdog heartbeat from the status loop while the run is healthy.
     sdNotify(fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
@@ -261,6 +265,7 @@ int runCommand(const RunOptions& o) {
     for (const auto& r : rs.results) tally(r);
     realtime_report = rs.report;
     stopped = rs.stopped_early;
+    end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed, rs.refine_jobs_shed, 0};
   }
   Progress progress("mapping", frames.size());
   for (size_t k = 0; k < frames.size() && !o.realtime; ++k) {
@@ -306,9 +311,26 @@ int runCommand(const RunOptions& o) {
       refine.add(outcome);
     }
     const double sum = tally(r);
+#ifdef HXMAP_HAVE_DDS
+    if (publisher) {
+      publisher->onFrame(r, frontend.map(), frontend.trajectory(),
+                         RunCounters{bad_frames, 0, refine.jobs, 0, since_start(std::chrono::steady_clock::now()) * 1e-6 -
+                                                                         since_start(t_load) * 1e-6});
+    }
+#endif
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+#ifdef HXMAP_HAVE_DDS
+  std::string dds_text;
+  if (publisher) {
+    // Everything mapped goes out before the program ends (transient-local
+    // readers that join while it is still up get the whole map).
+    if (!o.realtime) end_counters = {bad_frames, 0, refine.jobs, 0, 0};
+    publisher->flush(frontend.map(), frontend.trajectory(), end_counters);
+    dds_text = publisherStatsText(publisher->stats(), wall_s);
+  }
+#endif
 
   // Outputs are written even after an error, so nothing mapped so far is lost.
   const std::string traj_path = (fs::path(o.out_dir) / "trajectory.txt").string();
@@ -368,6 +390,9 @@ int runCommand(const RunOptions& o) {
     }
   }
   summary += qualityText(frontend);
+#ifdef HXMAP_HAVE_DDS
+  summary += dds_text;
+#endif
   if (refine.jobs > 0) {
     const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms), ps = percentiles(refine.setup_ms);
     const double n = static_cast<double>(refine.jobs);
@@ -513,6 +538,14 @@ int evalCommand(const EvalOptions& o) {
   }
   return 0;
 }
+
+#ifndef HXMAP_HAVE_DDS
+int echoCommand(const EchoOptions&) {
+  spdlog::error("echo: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
+                "configure and build again)");
+  return 2;
+}
+#endif
 
 int configCommand(const std::string& config) {
   auto c = config.empty() ? Expected<HxmapConfig>(HxmapConfig{}) : loadConfig(config);

@@ -21,6 +21,7 @@ struct RunOptions {
   double fps = 0;         ///< with realtime: playback rate (0 = recorded stamps)
   double burn_ms = 0;     ///< with realtime: inject CPU-burning refinement slices of this many ms
   std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
+  bool dds = false;          ///< publish over DDS (also dds.enabled in the configuration)
 };
 int runCommand(const RunOptions& options);
 
@@ -45,6 +46,17 @@ struct EvalOptions {
 int evalCommand(const EvalOptions& options);
 
 int configCommand(const std::string& config);
+
+struct EchoOptions {
+  std::string topic;    ///< pose, trajectory, map or health
+  std::string config;   ///< for the dds: section; empty = defaults
+  int count = 0;        ///< stop after this many messages; 0 = until Ctrl-C
+  double timeout_s = 0; ///< fail when count messages have not come by then; 0 = wait forever
+  int domain_id = -1;   ///< -1 = from the configuration
+  std::string prefix;   ///< empty = from the configuration
+};
+/// Prints what hxmap publishes on a topic, one line per message (needs DDS).
+int echoCommand(const EchoOptions& options);
 
 /// The frontend's parameters from a configuration (what `hxmap run` uses).
 FrontendParams frontendParams(const HxmapConfig& config);

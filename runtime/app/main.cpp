@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
                       "folder for quality indicator images per keyframe, ROI boxes (rois.ply) and block scores");
   run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");
   run_cmd->add_flag("--no-mesh-eval", run.no_mesh_eval, "do not score the mesh against gt_mesh.ply");
+  run_cmd->add_flag("--dds", run.dds, "publish pose, trajectory, map and health over DDS (as dds.enabled)");
 
   hxmap::rt::SynthOptions synth;
   auto* synth_cmd = app.add_subcommand("synth", "render a synthetic RGB-D sequence with exact ground truth");
@@ -64,6 +65,15 @@ int main(int argc, char** argv) {
   auto* config_cmd = app.add_subcommand("config", "validate a configuration and print the effective values");
   config_cmd->add_option("config", config_path, "YAML configuration");
 
+  hxmap::rt::EchoOptions echo;
+  auto* echo_cmd = app.add_subcommand("echo", "print what hxmap publishes on a DDS topic, one line per message");
+  echo_cmd->add_option("topic", echo.topic, "pose, trajectory, map or health")->required();
+  echo_cmd->add_option("--config", echo.config, "YAML configuration (dds section: domain, topic prefix)");
+  echo_cmd->add_option("--count", echo.count, "stop after this many messages (default: until Ctrl-C)");
+  echo_cmd->add_option("--timeout", echo.timeout_s, "fail when --count messages have not come within this many seconds");
+  echo_cmd->add_option("--domain", echo.domain_id, "DDS domain id (default: from the configuration)");
+  echo_cmd->add_option("--prefix", echo.prefix, "topic prefix (default: from the configuration)");
+
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(verbose ? spdlog::level::debug : quiet ? spdlog::level::warn : spdlog::level::info);
   if (*run_cmd) return hxmap::rt::runCommand(run);
@@ -71,5 +81,6 @@ int main(int argc, char** argv) {
   if (*demo_cmd) return hxmap::rt::demoCommand(demo_out, demo_config);
   if (*eval_cmd) return hxmap::rt::evalCommand(eval);
   if (*config_cmd) return hxmap::rt::configCommand(config_path);
+  if (*echo_cmd) return hxmap::rt::echoCommand(echo);
   return 2;
 }

@@ -244,6 +244,7 @@ IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const Para
     updated += local_updates;
   });
   stats.voxels_updated = updated;
+  map.markChanged(blocks);
   return stats;
 }
 
@@ -280,6 +281,7 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
       ++stats.voxels_updated;
     }
   }
+  map.markChanged(blocks);
   return stats;
 }
 

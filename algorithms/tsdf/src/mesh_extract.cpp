@@ -164,13 +164,19 @@ void emitCube(const float s[8], const Eigen::Vector3i& g, const Eigen::Vector3f&
 
 const std::vector<int>& marchingCubesTriangles(int configuration) { return table()[configuration & 255]; }
 
-TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
+namespace {
+
+// Marching cubes over the cubes of blocks[i] for i in [0, count): each cube
+// belongs to the block of its minimum corner.
+template <class BlockAt>
+TriangleMesh meshBlocks(const TsdfMap& map, const MeshParams& params, size_t count, const BlockAt& block_at) {
   TriangleMesh mesh;
   WeldMap welded;
   const float min_w = std::max(static_cast<float>(params.min_weight), 1e-6f);
   const float vs = map.voxelSize();
   const Eigen::Vector3f voxel_origin = Eigen::Vector3f::Constant(0.5f * vs);  // voxel centers
-  for (size_t b = 0; b < map.blockCount(); ++b) {
+  for (size_t bi = 0; bi < count; ++bi) {
+    const size_t b = block_at(bi);
     const BlockKey key = map.key(b);
     // Neighbour blocks in +x, +y, +z combinations (index by bit mask).
     const VoxelBlock* nb[8];
@@ -216,6 +222,16 @@ TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
     }
   }
   return mesh;
+}
+
+}  // namespace
+
+TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params) {
+  return meshBlocks(map, params, map.blockCount(), [](size_t i) { return i; });
+}
+
+TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params, const std::vector<int32_t>& blocks) {
+  return meshBlocks(map, params, blocks.size(), [&](size_t i) { return static_cast<size_t>(blocks[i]); });
 }
 
 TriangleMesh extractMeshDense(const std::vector<float>& sdf, const Eigen::Vector3i& dims,

@@ -10,13 +10,16 @@ PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
   const float mu = map.truncation();
   const float max_w = static_cast<float>(map.params().max_weight);
   const size_t before = map.blockCount();
+  std::vector<int32_t> written;
   for (const auto& e : patch.entries) {
     if (!std::isfinite(e.sdf_m) || !std::isfinite(e.weight) || !(e.weight > 0.0f)) {
       ++stats.rejected;
       continue;
     }
     const BlockKey key(e.voxel.x() >> 3, e.voxel.y() >> 3, e.voxel.z() >> 3);
-    VoxelBlock& blk = map.block(static_cast<size_t>(map.findOrAllocate(key)));
+    const int32_t b = map.findOrAllocate(key);
+    if (written.empty() || written.back() != b) written.push_back(b);
+    VoxelBlock& blk = map.block(static_cast<size_t>(b));
     VoxelGeometry& g = blk.geo[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)];
     const float s = std::clamp(e.sdf_m, -mu, mu);
     const float new_w = g.weight + e.weight;
@@ -32,6 +35,9 @@ PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
     ++stats.applied;
   }
   stats.blocks_allocated = map.blockCount() - before;
+  std::sort(written.begin(), written.end());
+  written.erase(std::unique(written.begin(), written.end()), written.end());
+  map.markChanged(written);
   return stats;
 }
 

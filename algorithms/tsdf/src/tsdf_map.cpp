@@ -34,6 +34,7 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   const int32_t index = static_cast<int32_t>(keys_.size());
   keys_.push_back(key);
   blocks_.emplace_back();
+  block_revisions_.push_back(0);
   const uint64_t packed = pack(key) + 1;
   const size_t mask = table_keys_.size() - 1;
   size_t s = slotOf(packed, mask);
@@ -140,9 +141,24 @@ MapMemory TsdfMap::memory() const {
                             table_keys_.size() * (sizeof(uint64_t) + sizeof(int32_t))};
 }
 
+void TsdfMap::markChanged(const std::vector<int32_t>& block_indices) {
+  ++revision_;
+  for (const int32_t b : block_indices) block_revisions_[static_cast<size_t>(b)] = revision_;
+}
+
+std::vector<int32_t> TsdfMap::changedSince(uint64_t revision) const {
+  std::vector<int32_t> out;
+  for (size_t b = 0; b < block_revisions_.size(); ++b) {
+    if (block_revisions_[b] > revision) out.push_back(static_cast<int32_t>(b));
+  }
+  return out;
+}
+
 void TsdfMap::clear() {
   blocks_.clear();
   keys_.clear();
+  block_revisions_.clear();
+  ++revision_;
   rehash(1 << 12);
 }
 

@@ -1,5 +1,7 @@
 #include "hxmap/config/config.hpp"
 
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <fstream>
 #include <set>
@@ -22,6 +24,8 @@ class Visitor {
   virtual void integer(const char* key, int& v, int lo, int hi) = 0;
   virtual void boolean(const char* key, bool& v) = 0;
   virtual void choice(const char* key, std::string& v, const std::vector<std::string>& choices) = 0;
+  /// A ROS-style name: letters, digits, '_' and inner '/'.
+  virtual void name(const char* key, std::string& v) = 0;
 };
 
 void visit(HxmapConfig& c, Visitor& v) {
@@ -197,6 +201,19 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("refine_workers", c.runtime.refine_workers, 0, 64);
   v.number("deadline_margin_ms", c.runtime.deadline_margin_ms, 0, 1000);
   v.integer("shed_after_periods", c.runtime.shed_after_periods, 1, 100000);
+
+  auto& d = c.dds;
+  v.section("dds");
+  v.boolean("enabled", d.enabled);
+  v.integer("domain_id", d.domain_id, 0, 232);
+  v.name("topic_prefix", d.topic_prefix);
+  v.name("frame_id", d.frame_id);
+  v.number("map_period_s", d.map_period_s, 0, 3600);
+  v.number("trajectory_period_s", d.trajectory_period_s, 0, 3600);
+  v.number("health_period_s", d.health_period_s, 0, 3600);
+  v.integer("region_blocks", d.region_blocks, 1, 64);
+  v.integer("max_triangles_per_chunk", d.max_triangles_per_chunk, 1, 1 << 22);
+  v.integer("queue_capacity", d.queue_capacity, 2, 4096);
 }
 
 class Loader : public Visitor {
@@ -269,6 +286,22 @@ class Loader : public Visitor {
     v = x;
   }
 
+  void name(const char* key, std::string& v) override {
+    YAML::Node n;
+    if (!find(key, n)) return;
+    const std::string x = n.IsScalar() ? n.Scalar() : "";
+    const bool chars_ok = std::all_of(x.begin(), x.end(), [](char ch) {
+      return std::isalnum(static_cast<unsigned char>(ch)) != 0 || ch == '_' || ch == '/';
+    });
+    if (x.empty() || !chars_ok || x.front() == '/' || x.back() == '/' || x.find("//") != std::string::npos ||
+        std::isdigit(static_cast<unsigned char>(x.front())) != 0) {
+      error(n, fmt::format("{}.{}: '{}' is not a valid name (letters, digits, '_' and inner '/', not starting with a digit)",
+                           section_, key, text(n)));
+      return;
+    }
+    v = x;
+  }
+
   // Unknown sections and keys, after the visit.
   void checkUnknown() {
     if (!root_ || root_.IsNull()) return;
@@ -333,6 +366,7 @@ class Dumper : public Visitor {
   void choice(const char* key, std::string& v, const std::vector<std::string>&) override {
     out_ += fmt::format("  {}: {}\n", key, v);
   }
+  void name(const char* key, std::string& v) override { out_ += fmt::format("  {}: {}\n", key, v); }
   std::string out_;
 };
 

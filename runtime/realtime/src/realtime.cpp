@@ -156,6 +156,12 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       latency_ms.push_back(static_cast<double>(end - arrival_ns[idx]) * 1e-6);
       frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
       if (trace) traceFrameStages(*trace, r, start, 2, static_cast<int64_t>(idx));
+      if (options.on_frame) {
+        const SchedulerCounters c = sched.counters();
+        options.on_frame(r, frontend,
+                         RunCounters{c.frames_dropped, c.deadline_misses, refine_done.load(), refine_shed.load(),
+                                     latency_ms.back()});
+      }
       // ROI jobs the keyframe made: to the workers in turn; when every
       // worker's ring is full the job is rejected and counted.
       for (RefineJob& job : frontend.takeRefineJobs()) {

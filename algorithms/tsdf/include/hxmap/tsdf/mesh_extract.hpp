@@ -24,6 +24,10 @@ extern const std::array<std::array<int, 2>, 12> kCubeEdges;
 /// Mesh of the zero level set in world coordinates, vertices shared between
 /// neighbouring cubes, colors from the voxels when params.with_colors.
 TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params);
+/// The same over the given blocks only (their +x/+y/+z neighbours are read
+/// for the cubes on those faces). Each cube belongs to the block of its
+/// minimum corner, so the meshes of disjoint block sets tile the full mesh.
+TriangleMesh extractMesh(const TsdfMap& map, const MeshParams& params, const std::vector<int32_t>& blocks);
 
 /// Marching cubes over a dense grid of SDF samples (x fastest), with
 /// `origin` the position of sample (0, 0, 0) and `spacing` between samples.

@@ -98,6 +98,15 @@ class TsdfMap {
   VoxelBlock& block(size_t block_index) { return blocks_[block_index]; }
   const VoxelBlock& block(size_t block_index) const { return blocks_[block_index]; }
 
+  /// Change tracking, for publishing map updates: every writer (integration,
+  /// patches) calls markChanged on the blocks it wrote, which stamps them
+  /// with a new map revision. changedSince(r) lists the blocks written after
+  /// revision r was current. Allocation alone is not a change (a new block
+  /// holds no surface until something is fused into it).
+  uint64_t revision() const { return revision_; }
+  void markChanged(const std::vector<int32_t>& block_indices);
+  std::vector<int32_t> changedSince(uint64_t revision) const;
+
   /// Index of the block, or -1 when not allocated. Inline: it is on every
   /// hot path (raycast, trilinear sampling, meshing).
   int32_t find(const BlockKey& key) const {
@@ -159,6 +168,8 @@ class TsdfMap {
   float inv_voxel_size_, inv_block_size_;
   std::vector<VoxelBlock> blocks_;
   std::vector<BlockKey> keys_;
+  std::vector<uint64_t> block_revisions_;  ///< revision of each block's last write
+  uint64_t revision_ = 0;
   std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
 };

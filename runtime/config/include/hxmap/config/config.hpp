@@ -71,6 +71,22 @@ struct RefineConfig {
   alg::ImplicitParams implicit;
 };
 
+/// Publishing over Cyclone DDS (runtime/dds): `hxmap run` publishes when
+/// enabled (or with --dds). Topics rt/<topic_prefix>/{pose, trajectory, map,
+/// health}; the network comes from CYCLONEDDS_URI (config/cyclonedds.xml).
+struct DdsConfig {
+  bool enabled = false;
+  int domain_id = 0;                   ///< as ROS_DOMAIN_ID
+  std::string topic_prefix = "hxmap";
+  std::string frame_id = "map";        ///< header frame of poses and map
+  double map_period_s = 1.0;           ///< changed map regions go out at most this often
+  double trajectory_period_s = 1.0;
+  double health_period_s = 1.0;
+  int region_blocks = 4;               ///< map update region: a cube of this many TSDF blocks a side
+  int max_triangles_per_chunk = 16384; ///< larger region meshes go out in parts
+  int queue_capacity = 16;             ///< work items waiting for the publisher thread
+};
+
 struct HxmapConfig {
   CameraConfig camera;
   DatasetConfig dataset;
@@ -85,6 +101,7 @@ struct HxmapConfig {
   SyntheticConfig synthetic;
   EvalConfig eval;
   RuntimeConfig runtime;
+  DdsConfig dds;
 };
 
 /// Loads `path` over the defaults. All problems are reported in one Error,

@@ -93,6 +93,13 @@ struct FrameResult {
   std::array<double, kStageCount> stage_ms{};
 };
 
+/// What a runner knows about a frame beyond its result, for observers such
+/// as the DDS publisher (zeros where the runner has no such figure).
+struct RunCounters {
+  uint64_t frames_dropped = 0, deadline_misses = 0, refine_jobs_done = 0, refine_jobs_shed = 0;
+  double latency_ms = 0;  ///< this frame: arrival to pose
+};
+
 /// A corrected pose for a past frame (from pose feedback).
 struct PoseCorrection {
   int64_t stamp_ns = 0;

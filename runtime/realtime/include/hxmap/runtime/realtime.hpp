@@ -47,6 +47,10 @@ struct RealtimeOptions {
   double burn_slice_ms = 0;
   int burn_slices_per_job = 20;
   double status_interval_s = 0.5;  ///< status line period; 0 = none
+  /// Called on hx-frontend after each frame, between frames (e.g. to
+  /// publish the pose and map): it may read the frontend, and its time is
+  /// taken from the slack before the next frame.
+  std::function<void(const FrameResult&, const Frontend&, const RunCounters&)> on_frame;
 };
 
 struct RealtimeStats {

@@ -1,0 +1,106 @@
+// hxmap's topics: names, QoS, and the C++ form of each message with its
+// conversion to and from the idlc-generated wire structs.
+//
+//   rt/<prefix>/pose        geometry_msgs/PoseStamped  best effort, keep last 1
+//   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
+//   rt/<prefix>/map         hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
+//   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1
+//
+// "rt/" is how ROS 2 names a topic on the DDS wire, and the type names are
+// ROS 2's (geometry_msgs::msg::dds_::PoseStamped_ ...), so `ros2 topic echo
+// /hxmap/pose` works without any ROS code in hxmap. Stamps are the capture
+// time of the frame, in the sensor's clock. Poses are camera-to-map.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "hxmap/core/frame.hpp"
+#include "hxmap/dds/entity.hpp"
+#include "hxmap_msgs.h"
+
+namespace hxmap::rt::dds {
+
+enum class Topic { kPose, kTrajectory, kMap, kHealth };
+
+/// "rt/<prefix>/pose" and so on.
+std::string topicName(Topic topic, const std::string& prefix);
+/// Topic by its short name ("pose", "trajectory", "map", "health").
+Expected<Topic> topicFromString(const std::string& name);
+const char* topicShortName(Topic topic);
+TopicQos topicQos(Topic topic);
+const dds_topic_descriptor_t* topicType(Topic topic);
+
+struct PoseMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
+struct PathMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  Trajectory poses;
+};
+
+struct MapChunkMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  Eigen::Vector3i region = Eigen::Vector3i::Zero();
+  uint16_t part = 0, parts = 0;
+  uint32_t revision = 0;
+  float region_size_m = 0;
+  std::vector<float> vertices;     ///< x, y, z per vertex
+  std::vector<uint8_t> colors;     ///< r, g, b per vertex, or empty
+  std::vector<uint32_t> triangles; ///< 3 indices per triangle
+  /// Bytes of payload (what bandwidth figures count).
+  size_t payloadBytes() const {
+    return vertices.size() * sizeof(float) + colors.size() + triangles.size() * sizeof(uint32_t);
+  }
+};
+
+struct HealthMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  uint64_t frames = 0, frames_dropped = 0, frames_lost = 0, deadline_misses = 0, keyframes = 0;
+  uint64_t refine_jobs_done = 0, refine_jobs_shed = 0, messages_dropped = 0;
+  float fps = 0, latency_ms_p50 = 0, latency_ms_max = 0, frontend_ms_p50 = 0;
+};
+
+// To the wire: the structs point into the message (no copies); they are
+// valid while the message lives and is not modified.
+struct PoseWire {
+  explicit PoseWire(const PoseMessage& m);
+  geometry_msgs_msg_dds__PoseStamped_ wire{};
+};
+struct PathWire {
+  explicit PathWire(const PathMessage& m);
+  std::vector<geometry_msgs_msg_dds__PoseStamped_> poses;
+  nav_msgs_msg_dds__Path_ wire{};
+};
+struct MapChunkWire {
+  explicit MapChunkWire(const MapChunkMessage& m);
+  hxmap_msgs_msg_dds__MapChunk_ wire{};
+};
+struct HealthWire {
+  explicit HealthWire(const HealthMessage& m);
+  hxmap_msgs_msg_dds__Health_ wire{};
+};
+
+// From the wire (copies). A chunk whose sequences disagree (colors not 3
+// per vertex, an index out of range) is an Error naming what is wrong.
+PoseMessage fromWire(const geometry_msgs_msg_dds__PoseStamped_& w);
+PathMessage fromWire(const nav_msgs_msg_dds__Path_& w);
+Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w);
+HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w);
+
+/// One line of text per message, as `hxmap echo` prints them.
+std::string describe(const PoseMessage& m);
+std::string describe(const PathMessage& m);
+std::string describe(const MapChunkMessage& m);
+std::string describe(const HealthMessage& m);
+
+}  // namespace hxmap::rt::dds

@@ -1,0 +1,130 @@
+// Publishes what the mapping runtime produces on hxmap's DDS topics
+// (messages.hpp): the pose of every frame, the trajectory, map updates as
+// meshes of the regions that changed, and health.
+//
+// DESIGN: the frontend thread calls onFrame() after each frame. The pose is
+// written right there: a best-effort write of 100 bytes never blocks and
+// costs microseconds, and any hand-over to another thread would only add
+// latency. Everything else leaves the frontend thread as a work item on an
+// SPSC ring to the publisher thread (hx-publish), on its period: for the map
+// the frontend copies the blocks of the regions changed since the last
+// update (bounded by what changed, not by the map), and the publisher thread
+// meshes them and writes one chunk per region part. A full ring drops the
+// item, counted; the regions stay marked as changed and go out next time, so
+// no map data is lost, only delayed. Reliable writers may block the
+// publisher thread (a slow reliable reader), never the frontend.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <mutex>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "hxmap/core/expected.hpp"
+#include "hxmap/core/frame.hpp"
+#include "hxmap/dds/messages.hpp"
+#include "hxmap/frontend/frontend.hpp"
+#include "hxmap/runtime/spsc_ring.hpp"
+#include "hxmap/tsdf/map_regions.hpp"
+#include "hxmap/tsdf/params.hpp"
+
+namespace hxmap::rt::dds {
+
+struct PublisherParams {
+  uint32_t domain_id = 0;
+  std::string topic_prefix = "hxmap";
+  std::string frame_id = "map";
+  double map_period_s = 1.0;         ///< changed regions go out at most this often
+  double trajectory_period_s = 1.0;
+  double health_period_s = 1.0;
+  int region_blocks = 4;             ///< region side in TSDF blocks
+  int max_triangles_per_chunk = 16384;
+  int queue_capacity = 16;           ///< work items between the frontend and the publisher thread
+  alg::MeshParams mesh;
+};
+
+
+struct PublisherStats {
+  uint64_t poses = 0, paths = 0, health = 0;
+  uint64_t map_updates = 0;     ///< snapshots meshed and written
+  uint64_t regions = 0;         ///< region meshes written
+  uint64_t chunks = 0;          ///< chunk samples written (empty ones included)
+  uint64_t chunk_bytes = 0;     ///< their payload (vertices, colors, indices)
+  uint64_t items_dropped = 0;   ///< work items the full ring refused (data delayed, not lost)
+  uint64_t write_errors = 0;
+  std::string last_error;
+  double frame_cost_p50_ms = 0, frame_cost_max_ms = 0;  ///< onFrame on the calling thread
+  double snapshot_ms_total = 0;                         ///< of which copying changed regions
+  double mesh_ms_total = 0;                             ///< publisher thread: meshing and writing chunks
+};
+
+class Publisher {
+ public:
+  /// Joins the domain, creates the four writers and starts hx-publish.
+  static Expected<std::unique_ptr<Publisher>> start(const PublisherParams& params);
+  ~Publisher();
+  Publisher(const Publisher&) = delete;
+  Publisher& operator=(const Publisher&) = delete;
+
+  /// Frontend thread, after each processed frame.
+  void onFrame(const FrameResult& result, const alg::TsdfMap& map, const Trajectory& trajectory,
+               const RunCounters& counters);
+  /// Same thread: publishes every region changed since the last update, the
+  /// whole trajectory and health now, and returns once they are written
+  /// (end of a run, tests).
+  void flush(const alg::TsdfMap& map, const Trajectory& trajectory, const RunCounters& counters);
+
+  /// Calling thread; consistent after flush().
+  PublisherStats stats() const;
+  const PublisherParams& params() const { return params_; }
+  uint32_t matchedReaders(Topic topic) const;
+
+ private:
+  struct Work;
+  explicit Publisher(const PublisherParams& params);
+  bool push(std::unique_ptr<Work> work, bool must);
+  void snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must);
+  void queuePath(const Trajectory& trajectory, int64_t stamp_ns, bool must);
+  void queueHealth(const RunCounters& counters, int64_t stamp_ns, bool must);
+  void run();
+  void process(Work& work);
+  void writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns);
+  void recordError(const Status& s);
+
+  PublisherParams params_;
+  Participant participant_;
+  std::vector<Writer> writers_;  ///< by Topic
+  SpscRing<std::unique_ptr<Work>> ring_;
+  std::atomic<uint32_t> work_seq_{0};
+  std::atomic<uint32_t> flushed_seq_{0};
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+
+  // Calling thread.
+  uint64_t map_revision_ = 0;
+  int64_t last_map_ns_ = 0, last_path_ns_ = 0, last_health_ns_ = 0;
+  uint32_t flush_count_ = 0;
+  std::vector<double> frame_cost_ms_;
+  double snapshot_ms_total_ = 0;
+  std::vector<double> period_latency_ms_, period_frontend_ms_;
+  uint64_t frames_ = 0, frames_lost_ = 0, keyframes_ = 0, period_frames_ = 0;
+  uint64_t poses_ = 0, items_dropped_ = 0;
+
+  // Publisher thread (read by stats() after a flush).
+  struct RegionState {
+    uint32_t revision = 0;
+    uint16_t parts = 0;
+  };
+  std::unordered_map<uint64_t, RegionState> regions_;
+  std::atomic<uint64_t> paths_{0}, health_{0}, map_updates_{0}, regions_written_{0}, chunks_{0}, chunk_bytes_{0};
+  std::atomic<uint64_t> write_errors_{0};
+  std::atomic<double> mesh_ms_total_{0};
+  mutable std::mutex error_mutex_;
+  std::string last_error_;
+};
+
+}  // namespace hxmap::rt::dds

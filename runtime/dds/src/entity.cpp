@@ -1,0 +1,134 @@
+#include "hxmap/dds/entity.hpp"
+
+#include <memory>
+#include <vector>
+
+#include <fmt/format.h>
+
+namespace hxmap::rt::dds {
+
+namespace {
+
+struct QosDeleter {
+  void operator()(dds_qos_t* q) const { dds_delete_qos(q); }
+};
+using QosPtr = std::unique_ptr<dds_qos_t, QosDeleter>;
+
+QosPtr makeQos(const TopicQos& q) {
+  QosPtr qos(dds_create_qos());
+  dds_qset_reliability(qos.get(), q.reliable ? DDS_RELIABILITY_RELIABLE : DDS_RELIABILITY_BEST_EFFORT, DDS_MSECS(100));
+  dds_qset_durability(qos.get(), q.transient_local ? DDS_DURABILITY_TRANSIENT_LOCAL : DDS_DURABILITY_VOLATILE);
+  dds_qset_history(qos.get(), DDS_HISTORY_KEEP_LAST, q.depth);
+  return qos;
+}
+
+Expected<Entity> createTopic(const Participant& participant, const dds_topic_descriptor_t* type, const std::string& topic) {
+  const dds_entity_t t = dds_create_topic(participant.get(), type, topic.c_str(), nullptr, nullptr);
+  if (t < 0) return ddsError(fmt::format("creating topic '{}' of type {}", topic, type->m_typename), t);
+  return Entity(t);
+}
+
+}  // namespace
+
+Error ddsError(const std::string& what, dds_return_t rc) {
+  return Error{fmt::format("DDS: {}: {}", what, dds_strretcode(rc))};
+}
+
+void Entity::reset() {
+  // Deleting a participant deletes its children: a handle whose parent went
+  // first reports ALREADY_DELETED, which is fine here.
+  if (handle_ > 0) dds_delete(handle_);
+  handle_ = 0;
+}
+
+Expected<Participant> Participant::create(uint32_t domain_id) {
+  const dds_entity_t p = dds_create_participant(domain_id, nullptr, nullptr);
+  if (p < 0) {
+    return ddsError(fmt::format("creating a participant in domain {} (check CYCLONEDDS_URI and the network interface it names)",
+                                domain_id),
+                    p);
+  }
+  Participant out;
+  out.entity_ = Entity(p);
+  return out;
+}
+
+Expected<Writer> Writer::create(const Participant& participant, const dds_topic_descriptor_t* type,
+                                const std::string& topic, const TopicQos& qos) {
+  Writer w;
+  w.topic_ = topic;
+  auto t = createTopic(participant, type, topic);
+  if (!t) return t.error();
+  w.topic_entity_ = std::move(*t);
+  const QosPtr q = makeQos(qos);
+  const dds_entity_t h = dds_create_writer(participant.get(), w.topic_entity_.get(), q.get(), nullptr);
+  if (h < 0) return ddsError(fmt::format("creating a writer on '{}'", topic), h);
+  w.writer_ = Entity(h);
+  return w;
+}
+
+Status Writer::write(const void* sample) {
+  const dds_return_t rc = dds_write(writer_.get(), sample);
+  if (rc != DDS_RETCODE_OK) return ddsError(fmt::format("writing to '{}'", topic_), rc);
+  return Status::ok();
+}
+
+uint32_t Writer::matchedReaders() const {
+  dds_publication_matched_status_t s{};
+  if (dds_get_publication_matched_status(writer_.get(), &s) != DDS_RETCODE_OK) return 0;
+  return s.current_count;
+}
+
+Expected<Reader> Reader::create(const Participant& participant, const dds_topic_descriptor_t* type,
+                                const std::string& topic, const TopicQos& qos) {
+  Reader r;
+  r.topic_ = topic;
+  auto t = createTopic(participant, type, topic);
+  if (!t) return t.error();
+  r.topic_entity_ = std::move(*t);
+  const QosPtr q = makeQos(qos);
+  const dds_entity_t h = dds_create_reader(participant.get(), r.topic_entity_.get(), q.get(), nullptr);
+  if (h < 0) return ddsError(fmt::format("creating a reader on '{}'", topic), h);
+  r.reader_ = Entity(h);
+  const dds_entity_t ws = dds_create_waitset(participant.get());
+  if (ws < 0) return ddsError(fmt::format("creating a waitset for '{}'", topic), ws);
+  r.waitset_ = Entity(ws);
+  const dds_entity_t cond = dds_create_readcondition(h, DDS_ANY_STATE);
+  if (cond < 0) return ddsError(fmt::format("creating a read condition on '{}'", topic), cond);
+  r.condition_ = Entity(cond);
+  const dds_return_t rc = dds_waitset_attach(ws, cond, 0);
+  if (rc != DDS_RETCODE_OK) return ddsError(fmt::format("attaching the read condition of '{}'", topic), rc);
+  return r;
+}
+
+Expected<bool> Reader::wait(double timeout_s) {
+  const dds_return_t n = dds_waitset_wait(waitset_.get(), nullptr, 0, static_cast<dds_duration_t>(timeout_s * 1e9));
+  if (n < 0) return ddsError(fmt::format("waiting for data on '{}'", topic_), n);
+  return n > 0;
+}
+
+Expected<size_t> Reader::take(const std::function<void(const void*, const dds_sample_info_t&)>& on_sample, size_t max) {
+  std::vector<void*> samples(max, nullptr);
+  std::vector<dds_sample_info_t> infos(max);
+  const dds_return_t n = dds_take(reader_.get(), samples.data(), infos.data(), max, static_cast<uint32_t>(max));
+  if (n < 0) return ddsError(fmt::format("taking samples from '{}'", topic_), n);
+  size_t valid = 0;
+  for (dds_return_t i = 0; i < n; ++i) {
+    if (!infos[static_cast<size_t>(i)].valid_data) continue;
+    on_sample(samples[static_cast<size_t>(i)], infos[static_cast<size_t>(i)]);
+    ++valid;
+  }
+  if (n > 0) {
+    const dds_return_t rc = dds_return_loan(reader_.get(), samples.data(), n);
+    if (rc != DDS_RETCODE_OK) return ddsError(fmt::format("returning samples to '{}'", topic_), rc);
+  }
+  return valid;
+}
+
+uint32_t Reader::matchedWriters() const {
+  dds_subscription_matched_status_t s{};
+  if (dds_get_subscription_matched_status(reader_.get(), &s) != DDS_RETCODE_OK) return 0;
+  return s.current_count;
+}
+
+}  // namespace hxmap::rt::dds

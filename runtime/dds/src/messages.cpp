@@ -1,0 +1,231 @@
+#include "hxmap/dds/messages.hpp"
+
+#include <fmt/format.h>
+
+namespace hxmap::rt::dds {
+
+namespace {
+
+builtin_interfaces_msg_dds__Time_ toTime(int64_t ns) {
+  int64_t sec = ns / 1000000000;
+  int64_t rem = ns % 1000000000;
+  if (rem < 0) {
+    rem += 1000000000;
+    --sec;
+  }
+  return {static_cast<int32_t>(sec), static_cast<uint32_t>(rem)};
+}
+
+int64_t fromTime(const builtin_interfaces_msg_dds__Time_& t) {
+  return static_cast<int64_t>(t.sec) * 1000000000 + static_cast<int64_t>(t.nanosec);
+}
+
+// Sequences point at the message's storage; _release false: Cyclone never frees them.
+template <class Seq, class T>
+Seq view(const std::vector<T>& v) {
+  Seq s{};
+  s._maximum = s._length = static_cast<uint32_t>(v.size());
+  s._buffer = const_cast<T*>(v.data());
+  s._release = false;
+  return s;
+}
+
+void fillPose(geometry_msgs_msg_dds__PoseStamped_& w, int64_t stamp_ns, const std::string& frame_id,
+              const Eigen::Isometry3d& T) {
+  w.header.stamp = toTime(stamp_ns);
+  w.header.frame_id = const_cast<char*>(frame_id.c_str());
+  const Eigen::Vector3d t = T.translation();
+  const Eigen::Quaterniond q(T.linear());
+  w.pose.position = {t.x(), t.y(), t.z()};
+  w.pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+}
+
+StampedPose readPose(const geometry_msgs_msg_dds__PoseStamped_& w) {
+  StampedPose p;
+  p.stamp_ns = fromTime(w.header.stamp);
+  const auto& o = w.pose.orientation;
+  Eigen::Quaterniond q(o.w, o.x, o.y, o.z);
+  if (q.norm() > 0) q.normalize();
+  p.T_world_cam.linear() = q.toRotationMatrix();
+  p.T_world_cam.translation() = Eigen::Vector3d(w.pose.position.x, w.pose.position.y, w.pose.position.z);
+  return p;
+}
+
+std::string str(const char* s) { return s != nullptr ? std::string(s) : std::string(); }
+
+std::string stampText(int64_t ns) { return fmt::format("{}.{:09d}", ns / 1000000000, ns % 1000000000); }
+
+}  // namespace
+
+std::string topicName(Topic topic, const std::string& prefix) {
+  return fmt::format("rt/{}/{}", prefix, topicShortName(topic));
+}
+
+const char* topicShortName(Topic topic) {
+  switch (topic) {
+    case Topic::kPose: return "pose";
+    case Topic::kTrajectory: return "trajectory";
+    case Topic::kMap: return "map";
+    case Topic::kHealth: return "health";
+  }
+  return "?";
+}
+
+Expected<Topic> topicFromString(const std::string& name) {
+  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+    if (name == topicShortName(t)) return t;
+  }
+  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health)", name)};
+}
+
+TopicQos topicQos(Topic topic) {
+  switch (topic) {
+    case Topic::kPose: return {false, false, 1};
+    case Topic::kTrajectory: return {true, true, 1};
+    case Topic::kMap: return {true, true, 1};
+    case Topic::kHealth: return {true, true, 1};
+  }
+  return {};
+}
+
+const dds_topic_descriptor_t* topicType(Topic topic) {
+  switch (topic) {
+    case Topic::kPose: return &geometry_msgs_msg_dds__PoseStamped__desc;
+    case Topic::kTrajectory: return &nav_msgs_msg_dds__Path__desc;
+    case Topic::kMap: return &hxmap_msgs_msg_dds__MapChunk__desc;
+    case Topic::kHealth: return &hxmap_msgs_msg_dds__Health__desc;
+  }
+  return nullptr;
+}
+
+PoseWire::PoseWire(const PoseMessage& m) { fillPose(wire, m.stamp_ns, m.frame_id, m.T_world_cam); }
+
+PathWire::PathWire(const PathMessage& m) : poses(m.poses.size()) {
+  for (size_t i = 0; i < m.poses.size(); ++i) fillPose(poses[i], m.poses[i].stamp_ns, m.frame_id, m.poses[i].T_world_cam);
+  wire.header.stamp = toTime(m.stamp_ns);
+  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.poses = view<dds_sequence_geometry_msgs_msg_dds__PoseStamped_>(poses);
+}
+
+MapChunkWire::MapChunkWire(const MapChunkMessage& m) {
+  wire.header.stamp = toTime(m.stamp_ns);
+  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.region_x = m.region.x();
+  wire.region_y = m.region.y();
+  wire.region_z = m.region.z();
+  wire.part = m.part;
+  wire.parts = m.parts;
+  wire.revision = m.revision;
+  wire.region_size_m = m.region_size_m;
+  wire.vertices = view<dds_sequence_float>(m.vertices);
+  wire.colors = view<dds_sequence_uint8>(m.colors);
+  wire.triangles = view<dds_sequence_uint32>(m.triangles);
+}
+
+HealthWire::HealthWire(const HealthMessage& m) {
+  wire.header.stamp = toTime(m.stamp_ns);
+  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.frames = m.frames;
+  wire.frames_dropped = m.frames_dropped;
+  wire.frames_lost = m.frames_lost;
+  wire.deadline_misses = m.deadline_misses;
+  wire.keyframes = m.keyframes;
+  wire.refine_jobs_done = m.refine_jobs_done;
+  wire.refine_jobs_shed = m.refine_jobs_shed;
+  wire.messages_dropped = m.messages_dropped;
+  wire.fps = m.fps;
+  wire.latency_ms_p50 = m.latency_ms_p50;
+  wire.latency_ms_max = m.latency_ms_max;
+  wire.frontend_ms_p50 = m.frontend_ms_p50;
+}
+
+PoseMessage fromWire(const geometry_msgs_msg_dds__PoseStamped_& w) {
+  const StampedPose p = readPose(w);
+  return {p.stamp_ns, str(w.header.frame_id), p.T_world_cam};
+}
+
+PathMessage fromWire(const nav_msgs_msg_dds__Path_& w) {
+  PathMessage m;
+  m.stamp_ns = fromTime(w.header.stamp);
+  m.frame_id = str(w.header.frame_id);
+  m.poses.reserve(w.poses._length);
+  for (uint32_t i = 0; i < w.poses._length; ++i) m.poses.push_back(readPose(w.poses._buffer[i]));
+  return m;
+}
+
+Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w) {
+  MapChunkMessage m;
+  m.stamp_ns = fromTime(w.header.stamp);
+  m.frame_id = str(w.header.frame_id);
+  m.region = {w.region_x, w.region_y, w.region_z};
+  m.part = w.part;
+  m.parts = w.parts;
+  m.revision = w.revision;
+  m.region_size_m = w.region_size_m;
+  const std::string where = fmt::format("map chunk ({}, {}, {}) part {}", w.region_x, w.region_y, w.region_z, w.part);
+  if (w.vertices._length % 3 != 0) return Error{fmt::format("{}: {} vertex floats, not 3 per vertex", where, w.vertices._length)};
+  if (w.triangles._length % 3 != 0) return Error{fmt::format("{}: {} indices, not 3 per triangle", where, w.triangles._length)};
+  if (w.colors._length != 0 && w.colors._length != w.vertices._length) {
+    return Error{fmt::format("{}: {} color bytes for {} vertices", where, w.colors._length, w.vertices._length / 3)};
+  }
+  const uint32_t nv = w.vertices._length / 3;
+  for (uint32_t i = 0; i < w.triangles._length; ++i) {
+    if (w.triangles._buffer[i] >= nv) return Error{fmt::format("{}: index {} out of range ({} vertices)", where, w.triangles._buffer[i], nv)};
+  }
+  m.vertices.assign(w.vertices._buffer, w.vertices._buffer + w.vertices._length);
+  m.colors.assign(w.colors._buffer, w.colors._buffer + w.colors._length);
+  m.triangles.assign(w.triangles._buffer, w.triangles._buffer + w.triangles._length);
+  return m;
+}
+
+HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w) {
+  HealthMessage m;
+  m.stamp_ns = fromTime(w.header.stamp);
+  m.frame_id = str(w.header.frame_id);
+  m.frames = w.frames;
+  m.frames_dropped = w.frames_dropped;
+  m.frames_lost = w.frames_lost;
+  m.deadline_misses = w.deadline_misses;
+  m.keyframes = w.keyframes;
+  m.refine_jobs_done = w.refine_jobs_done;
+  m.refine_jobs_shed = w.refine_jobs_shed;
+  m.messages_dropped = w.messages_dropped;
+  m.fps = w.fps;
+  m.latency_ms_p50 = w.latency_ms_p50;
+  m.latency_ms_max = w.latency_ms_max;
+  m.frontend_ms_p50 = w.frontend_ms_p50;
+  return m;
+}
+
+std::string describe(const PoseMessage& m) {
+  const Eigen::Vector3d t = m.T_world_cam.translation();
+  const Eigen::Quaterniond q(m.T_world_cam.linear());
+  return fmt::format("pose {} {} t {:.6f} {:.6f} {:.6f} q {:.6f} {:.6f} {:.6f} {:.6f}", stampText(m.stamp_ns), m.frame_id,
+                     t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+}
+
+std::string describe(const PathMessage& m) {
+  std::string last;
+  if (!m.poses.empty()) {
+    const Eigen::Vector3d t = m.poses.back().T_world_cam.translation();
+    last = fmt::format(" last {} t {:.6f} {:.6f} {:.6f}", stampText(m.poses.back().stamp_ns), t.x(), t.y(), t.z());
+  }
+  return fmt::format("trajectory {} {} poses {}{}", stampText(m.stamp_ns), m.frame_id, m.poses.size(), last);
+}
+
+std::string describe(const MapChunkMessage& m) {
+  return fmt::format("map {} {} region {} {} {} part {}/{} revision {} vertices {} triangles {} colors {} bytes {}",
+                     stampText(m.stamp_ns), m.frame_id, m.region.x(), m.region.y(), m.region.z(), m.part, m.parts,
+                     m.revision, m.vertices.size() / 3, m.triangles.size() / 3, m.colors.empty() ? "no" : "yes",
+                     m.payloadBytes());
+}
+
+std::string describe(const HealthMessage& m) {
+  return fmt::format("health {} frames {} dropped {} lost {} misses {} keyframes {} refine_done {} refine_shed {} "
+                     "messages_dropped {} fps {:.2f} latency_p50_ms {:.2f} latency_max_ms {:.2f} frontend_p50_ms {:.2f}",
+                     stampText(m.stamp_ns), m.frames, m.frames_dropped, m.frames_lost, m.deadline_misses, m.keyframes,
+                     m.refine_jobs_done, m.refine_jobs_shed, m.messages_dropped, m.fps, m.latency_ms_p50,
+                     m.latency_ms_max, m.frontend_ms_p50);
+}
+
+}  // namespace hxmap::rt::dds

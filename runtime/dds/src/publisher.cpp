@@ -1,0 +1,308 @@
+#include "hxmap/dds/publisher.hpp"
+
+#include <algorithm>
+#include <chrono>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <pthread.h>
+
+namespace hxmap::rt::dds {
+
+namespace {
+
+int64_t nowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+uint64_t packRegion(const alg::RegionKey& r) { return alg::packBlockKey(r); }
+
+}  // namespace
+
+struct Publisher::Work {
+  enum Kind { kMap, kPath, kHealth, kFlush } kind = kMap;
+  int64_t stamp_ns = 0;
+  std::unique_ptr<alg::TsdfMap> snapshot;
+  std::vector<alg::RegionKey> regions;
+  PathMessage path;
+  HealthMessage health;
+  uint32_t flush_seq = 0;
+};
+
+Publisher::Publisher(const PublisherParams& params)
+    : params_(params), ring_(static_cast<size_t>(std::max(params.queue_capacity, 2))) {}
+
+Expected<std::unique_ptr<Publisher>> Publisher::start(const PublisherParams& params) {
+  if (params.region_blocks < 1) return Error{fmt::format("dds.region_blocks: {} must be at least 1", params.region_blocks)};
+  std::unique_ptr<Publisher> p(new Publisher(params));
+  auto participant = Participant::create(params.domain_id);
+  if (!participant) return participant.error();
+  p->participant_ = std::move(*participant);
+  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+    auto w = Writer::create(p->participant_, topicType(t), topicName(t, params.topic_prefix), topicQos(t));
+    if (!w) return w.error();
+    p->writers_.push_back(std::move(*w));
+  }
+  p->thread_ = std::thread([raw = p.get()] {
+    pthread_setname_np(pthread_self(), "hx-publish");
+    raw->run();
+  });
+  return p;
+}
+
+Publisher::~Publisher() {
+  stop_.store(true, std::memory_order_release);
+  work_seq_.fetch_add(1, std::memory_order_release);
+  work_seq_.notify_one();
+  if (thread_.joinable()) thread_.join();
+}
+
+uint32_t Publisher::matchedReaders(Topic topic) const { return writers_[static_cast<size_t>(topic)].matchedReaders(); }
+
+bool Publisher::push(std::unique_ptr<Work> work, bool must) {
+  while (!ring_.tryPush(std::move(work))) {
+    if (!must) {
+      ++items_dropped_;
+      return false;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  work_seq_.fetch_add(1, std::memory_order_release);
+  work_seq_.notify_one();
+  return true;
+}
+
+void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must) {
+  const int64_t t0 = nowNs();
+  auto work = std::make_unique<Work>();
+  work->kind = Work::kMap;
+  work->stamp_ns = stamp_ns;
+  work->regions = alg::changedRegions(map, map_revision_, params_.region_blocks);
+  if (work->regions.empty()) return;
+  work->snapshot = std::make_unique<alg::TsdfMap>(alg::copyRegions(map, work->regions, params_.region_blocks));
+  snapshot_ms_total_ += static_cast<double>(nowNs() - t0) * 1e-6;
+  const uint64_t revision = map.revision();
+  // Refused: the regions stay marked and go out with the next update.
+  if (push(std::move(work), must)) map_revision_ = revision;
+}
+
+void Publisher::queuePath(const Trajectory& trajectory, int64_t stamp_ns, bool must) {
+  auto work = std::make_unique<Work>();
+  work->kind = Work::kPath;
+  work->path.stamp_ns = stamp_ns;
+  work->path.frame_id = params_.frame_id;
+  work->path.poses = trajectory;
+  push(std::move(work), must);
+}
+
+void Publisher::queueHealth(const RunCounters& counters, int64_t stamp_ns, bool must) {
+  const int64_t now = nowNs();
+  auto work = std::make_unique<Work>();
+  work->kind = Work::kHealth;
+  HealthMessage& h = work->health;
+  h.stamp_ns = stamp_ns;
+  h.frame_id = params_.frame_id;
+  h.frames = frames_;
+  h.frames_dropped = counters.frames_dropped;
+  h.frames_lost = frames_lost_;
+  h.deadline_misses = counters.deadline_misses;
+  h.keyframes = keyframes_;
+  h.refine_jobs_done = counters.refine_jobs_done;
+  h.refine_jobs_shed = counters.refine_jobs_shed;
+  h.messages_dropped = items_dropped_;
+  const double period_s = static_cast<double>(now - last_health_ns_) * 1e-9;
+  h.fps = last_health_ns_ > 0 && period_s > 0 ? static_cast<float>(static_cast<double>(period_frames_) / period_s) : 0.0f;
+  h.latency_ms_p50 = static_cast<float>(median(period_latency_ms_));
+  h.latency_ms_max = period_latency_ms_.empty()
+                         ? 0.0f
+                         : static_cast<float>(*std::max_element(period_latency_ms_.begin(), period_latency_ms_.end()));
+  h.frontend_ms_p50 = static_cast<float>(median(period_frontend_ms_));
+  period_latency_ms_.clear();
+  period_frontend_ms_.clear();
+  period_frames_ = 0;
+  last_health_ns_ = now;
+  push(std::move(work), must);
+}
+
+void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, const Trajectory& trajectory,
+                        const RunCounters& counters) {
+  const int64_t t0 = nowNs();
+  ++frames_;
+  ++period_frames_;
+  if (!result.tracked) ++frames_lost_;
+  if (result.keyframe) ++keyframes_;
+  double frontend_ms = 0;
+  for (double ms : result.stage_ms) frontend_ms += ms;
+  period_frontend_ms_.push_back(frontend_ms);
+  period_latency_ms_.push_back(counters.latency_ms);
+  if (result.tracked) {
+    PoseMessage pose{result.stamp_ns, params_.frame_id, result.T_world_cam};
+    const PoseWire wire(pose);
+    const Status s = writers_[static_cast<size_t>(Topic::kPose)].write(&wire.wire);
+    if (s) {
+      ++poses_;
+    } else {
+      recordError(s);
+    }
+  }
+  auto due = [&](int64_t& last, double period_s) {
+    if (last != 0 && static_cast<double>(t0 - last) < period_s * 1e9) return false;
+    last = t0;
+    return true;
+  };
+  if (due(last_map_ns_, params_.map_period_s)) snapshotMap(map, result.stamp_ns, false);
+  if (due(last_path_ns_, params_.trajectory_period_s)) queuePath(trajectory, result.stamp_ns, false);
+  if (last_health_ns_ == 0) last_health_ns_ = t0;
+  if (static_cast<double>(t0 - last_health_ns_) >= params_.health_period_s * 1e9) queueHealth(counters, result.stamp_ns, false);
+  frame_cost_ms_.push_back(static_cast<double>(nowNs() - t0) * 1e-6);
+}
+
+void Publisher::flush(const alg::TsdfMap& map, const Trajectory& trajectory, const RunCounters& counters) {
+  const int64_t stamp = trajectory.empty() ? 0 : trajectory.back().stamp_ns;
+  snapshotMap(map, stamp, true);
+  queuePath(trajectory, stamp, true);
+  queueHealth(counters, stamp, true);
+  auto work = std::make_unique<Work>();
+  work->kind = Work::kFlush;
+  work->flush_seq = ++flush_count_;
+  push(std::move(work), true);
+  for (uint32_t seen = flushed_seq_.load(std::memory_order_acquire); seen < flush_count_;
+       seen = flushed_seq_.load(std::memory_order_acquire)) {
+    flushed_seq_.wait(seen, std::memory_order_acquire);
+  }
+}
+
+void Publisher::run() {
+  for (;;) {
+    const uint32_t seq = work_seq_.load(std::memory_order_acquire);
+    std::unique_ptr<Work> work;
+    bool any = false;
+    while (ring_.tryPop(work)) {
+      any = true;
+      process(*work);
+    }
+    if (!any) {
+      if (stop_.load(std::memory_order_acquire)) return;
+      work_seq_.wait(seq, std::memory_order_acquire);
+    }
+  }
+}
+
+void Publisher::process(Work& work) {
+  switch (work.kind) {
+    case Work::kMap: {
+      const int64_t t0 = nowNs();
+      for (const alg::RegionKey& r : work.regions) writeRegion(*work.snapshot, r, work.stamp_ns);
+      map_updates_.fetch_add(1, std::memory_order_relaxed);
+      mesh_ms_total_.store(mesh_ms_total_.load(std::memory_order_relaxed) + static_cast<double>(nowNs() - t0) * 1e-6,
+                           std::memory_order_relaxed);
+      break;
+    }
+    case Work::kPath: {
+      const PathWire wire(work.path);
+      const Status s = writers_[static_cast<size_t>(Topic::kTrajectory)].write(&wire.wire);
+      if (s) paths_.fetch_add(1, std::memory_order_relaxed);
+      else recordError(s);
+      break;
+    }
+    case Work::kHealth: {
+      const HealthWire wire(work.health);
+      const Status s = writers_[static_cast<size_t>(Topic::kHealth)].write(&wire.wire);
+      if (s) health_.fetch_add(1, std::memory_order_relaxed);
+      else recordError(s);
+      break;
+    }
+    case Work::kFlush:
+      flushed_seq_.store(work.flush_seq, std::memory_order_release);
+      flushed_seq_.notify_all();
+      break;
+  }
+}
+
+void Publisher::writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns) {
+  const alg::TriangleMesh mesh = alg::regionMesh(snapshot, region, params_.region_blocks, params_.mesh);
+  const std::vector<alg::TriangleMesh> parts =
+      alg::splitMesh(mesh, static_cast<size_t>(std::max(params_.max_triangles_per_chunk, 1)));
+  RegionState& state = regions_[packRegion(region)];
+  const size_t n = std::min<size_t>(parts.size(), 65535);
+  if (n == 0 && state.parts == 0) return;  // no surface before or now: nothing to tell
+  ++state.revision;
+  MapChunkMessage m;
+  m.stamp_ns = stamp_ns;
+  m.frame_id = params_.frame_id;
+  m.region = region;
+  m.parts = static_cast<uint16_t>(n);
+  m.revision = state.revision;
+  m.region_size_m = snapshot.blockSize() * static_cast<float>(params_.region_blocks);
+  Writer& writer = writers_[static_cast<size_t>(Topic::kMap)];
+  // Parts the region no longer has are sent empty, so a reader drops them.
+  const size_t count = std::max<size_t>(n, state.parts);
+  for (size_t i = 0; i < count; ++i) {
+    m.part = static_cast<uint16_t>(i);
+    m.vertices.clear();
+    m.colors.clear();
+    m.triangles.clear();
+    if (i < n) {
+      const alg::TriangleMesh& p = parts[i];
+      m.vertices.reserve(p.vertices.size() * 3);
+      for (const auto& v : p.vertices) m.vertices.insert(m.vertices.end(), {v.x(), v.y(), v.z()});
+      if (p.colors.size() == p.vertices.size()) {
+        m.colors.reserve(p.colors.size() * 3);
+        for (const auto& c : p.colors) m.colors.insert(m.colors.end(), {c[0], c[1], c[2]});
+      }
+      m.triangles.reserve(p.triangles.size() * 3);
+      for (const auto& t : p.triangles) {
+        m.triangles.insert(m.triangles.end(), {static_cast<uint32_t>(t.x()), static_cast<uint32_t>(t.y()),
+                                               static_cast<uint32_t>(t.z())});
+      }
+    }
+    const MapChunkWire wire(m);
+    const Status s = writer.write(&wire.wire);
+    if (!s) {
+      recordError(s);
+      continue;
+    }
+    chunks_.fetch_add(1, std::memory_order_relaxed);
+    chunk_bytes_.fetch_add(m.payloadBytes(), std::memory_order_relaxed);
+  }
+  state.parts = static_cast<uint16_t>(n);
+  regions_written_.fetch_add(1, std::memory_order_relaxed);
+}
+
+void Publisher::recordError(const Status& s) {
+  write_errors_.fetch_add(1, std::memory_order_relaxed);
+  std::lock_guard<std::mutex> lock(error_mutex_);
+  if (last_error_ != s.message()) spdlog::warn("{}", s.message());
+  last_error_ = s.message();
+}
+
+PublisherStats Publisher::stats() const {
+  PublisherStats s;
+  s.poses = poses_;
+  s.paths = paths_.load();
+  s.health = health_.load();
+  s.map_updates = map_updates_.load();
+  s.regions = regions_written_.load();
+  s.chunks = chunks_.load();
+  s.chunk_bytes = chunk_bytes_.load();
+  s.items_dropped = items_dropped_;
+  s.write_errors = write_errors_.load();
+  {
+    std::lock_guard<std::mutex> lock(error_mutex_);
+    s.last_error = last_error_;
+  }
+  s.frame_cost_p50_ms = median(frame_cost_ms_);
+  s.frame_cost_max_ms = frame_cost_ms_.empty() ? 0 : *std::max_element(frame_cost_ms_.begin(), frame_cost_ms_.end());
+  s.snapshot_ms_total = snapshot_ms_total_;
+  s.mesh_ms_total = mesh_ms_total_.load();
+  return s;
+}
+
+}  // namespace hxmap::rt::dds
