@@ -1,0 +1,444 @@
+// Cyclone DDS for real, on loopback (config/cyclonedds-loopback.xml): the
+// publisher's topics read back by a second participant in this process and
+// by `hxmap echo` in a separate process, a late joiner receiving the whole
+// map, and clean errors. Each test process uses its own topic prefix, so
+// tests running in parallel do not hear each other.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <sstream>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "hxmap/dds/entity.hpp"
+#include "hxmap/dds/messages.hpp"
+#include "hxmap/dds/publisher.hpp"
+#include "hxmap/tsdf/mesh_extract.hpp"
+#include "hxmap/tsdf/patch.hpp"
+
+namespace hxmap::rt::dds {
+namespace {
+
+constexpr uint32_t kDomain = 77;
+
+class Loopback : public ::testing::Environment {
+ public:
+  void SetUp() override {
+    setenv("CYCLONEDDS_URI", "file://" HXMAP_SOURCE_DIR "/config/cyclonedds-loopback.xml", 1);
+  }
+};
+const auto* const kEnv = ::testing::AddGlobalTestEnvironment(new Loopback);
+
+std::string prefix(const char* test) { return fmt::format("hxtest_{}_{}", getpid(), test); }
+
+PublisherParams params(const std::string& prefix) {
+  PublisherParams p;
+  p.domain_id = kDomain;
+  p.topic_prefix = prefix;
+  p.map_period_s = 3600;  // map, trajectory and health only on flush()
+  p.trajectory_period_s = 3600;
+  p.health_period_s = 3600;
+  p.region_blocks = 2;
+  p.max_triangles_per_chunk = 300;  // several parts per region
+  return p;
+}
+
+Eigen::Isometry3d poseAt(int k) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.1 * k, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(0.01 * k, -0.2 + 0.003 * k, 1.5 - 0.02 * k);
+  return T;
+}
+
+FrameResult frame(int k) {
+  FrameResult r;
+  r.stamp_ns = 1'305'031'102'000'000'000 + int64_t{k} * 33'333'333;
+  r.T_world_cam = poseAt(k);
+  r.tracked = true;
+  return r;
+}
+
+// A sphere fused through a patch (so its blocks are marked changed).
+void addSphere(alg::TsdfMap& map, const Eigen::Vector3f& center, float radius) {
+  alg::TsdfPatch patch;
+  const float mu = map.truncation();
+  const Eigen::Vector3i lo = map.voxelOf(center - Eigen::Vector3f::Constant(radius + mu));
+  const Eigen::Vector3i hi = map.voxelOf(center + Eigen::Vector3f::Constant(radius + mu));
+  for (int z = lo.z(); z <= hi.z(); ++z) {
+    for (int y = lo.y(); y <= hi.y(); ++y) {
+      for (int x = lo.x(); x <= hi.x(); ++x) {
+        const Eigen::Vector3i g(x, y, z);
+        const float d = (map.voxelCenter(g) - center).norm() - radius;
+        if (std::abs(d) > mu) continue;
+        alg::TsdfPatch::Entry e;
+        e.voxel = g;
+        e.sdf_m = d;
+        e.weight = 1.0f;
+        e.has_color = true;
+        e.rgb[0] = static_cast<uint8_t>(40 + (x & 127));
+        e.rgb[1] = 90;
+        e.rgb[2] = static_cast<uint8_t>(200 - (z & 127));
+        patch.entries.push_back(e);
+      }
+    }
+  }
+  alg::applyPatch(map, patch);
+}
+
+alg::TsdfParams tsdfParams() {
+  alg::TsdfParams p;
+  p.voxel_size_m = 0.02;
+  p.truncation_m = 0.08;
+  return p;
+}
+
+template <class Pred>
+bool waitFor(Pred pred, double timeout_s) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < end) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return pred();
+}
+
+// The map as a reader holds it: newest revision of every (region, part).
+struct ReceivedMap {
+  std::map<std::array<int, 4>, MapChunkMessage> parts;
+  size_t bad = 0;
+  void add(const hxmap_msgs_msg_dds__MapChunk_& w) {
+    auto m = fromWire(w);
+    if (!m) {
+      ++bad;
+      return;
+    }
+    const std::array<int, 4> key{m->region.x(), m->region.y(), m->region.z(), m->part};
+    auto it = parts.find(key);
+    if (it == parts.end() || it->second.revision <= m->revision) parts[key] = std::move(*m);
+  }
+  // Triangles and area of the parts each region currently has.
+  std::pair<size_t, double> totals() const {
+    size_t triangles = 0;
+    double area = 0;
+    for (const auto& [key, m] : parts) {
+      if (m.part >= m.parts) continue;
+      triangles += m.triangles.size() / 3;
+      for (size_t t = 0; t < m.triangles.size(); t += 3) {
+        auto v = [&](size_t i) {
+          const size_t k = 3 * m.triangles[t + i];
+          return Eigen::Vector3d(m.vertices[k], m.vertices[k + 1], m.vertices[k + 2]);
+        };
+        area += 0.5 * (v(1) - v(0)).cross(v(2) - v(0)).norm();
+      }
+    }
+    return {triangles, area};
+  }
+};
+
+size_t drainMap(Reader& reader, ReceivedMap& received) {
+  auto n = reader.take([&](const void* s, const dds_sample_info_t&) {
+    received.add(*static_cast<const hxmap_msgs_msg_dds__MapChunk_*>(s));
+  });
+  return n ? *n : 0;
+}
+
+TEST(DdsMessages, WireRoundTripKeepsValues) {
+  const PoseMessage pose{1'305'031'102'175'304'000, "map", poseAt(7)};
+  const PoseMessage back = fromWire(PoseWire(pose).wire);
+  EXPECT_EQ(back.stamp_ns, pose.stamp_ns);
+  EXPECT_EQ(back.frame_id, "map");
+  EXPECT_LT((back.T_world_cam.matrix() - pose.T_world_cam.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+
+  PathMessage path{42, "map", {{1, poseAt(1)}, {2, poseAt(2)}, {-1'500'000'000, poseAt(3)}}};
+  const PathMessage path_back = fromWire(PathWire(path).wire);
+  ASSERT_EQ(path_back.poses.size(), 3u);
+  EXPECT_EQ(path_back.poses[2].stamp_ns, -1'500'000'000);  // negative stamps: floor seconds, positive nanoseconds
+  EXPECT_LT((path_back.poses[1].T_world_cam.matrix() - poseAt(2).matrix()).cwiseAbs().maxCoeff(), 1e-12);
+
+  MapChunkMessage chunk;
+  chunk.region = {-3, 4, 0};
+  chunk.part = 1;
+  chunk.parts = 2;
+  chunk.revision = 9;
+  chunk.vertices = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+  chunk.colors = {1, 2, 3, 4, 5, 6, 7, 8, 9};
+  chunk.triangles = {0, 1, 2};
+  auto chunk_back = fromWire(MapChunkWire(chunk).wire);
+  ASSERT_TRUE(chunk_back) << chunk_back.message();
+  EXPECT_EQ(chunk_back->region, chunk.region);
+  EXPECT_EQ(chunk_back->vertices, chunk.vertices);
+  EXPECT_EQ(chunk_back->colors, chunk.colors);
+  EXPECT_EQ(chunk_back->triangles, chunk.triangles);
+  EXPECT_EQ(chunk_back->payloadBytes(), 9 * 4 + 9 + 3 * 4u);
+
+  // Inconsistent chunks are errors naming the chunk, not crashes.
+  chunk.triangles = {0, 1, 3};
+  auto bad = fromWire(MapChunkWire(chunk).wire);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.message().find("(-3, 4, 0) part 1"), std::string::npos) << bad.message();
+  EXPECT_NE(bad.message().find("out of range"), std::string::npos) << bad.message();
+  chunk.triangles = {0, 1};
+  EXPECT_FALSE(fromWire(MapChunkWire(chunk).wire));
+  chunk.triangles = {0, 1, 2};
+  chunk.colors = {1, 2, 3};
+  EXPECT_FALSE(fromWire(MapChunkWire(chunk).wire));
+
+  EXPECT_EQ(topicName(Topic::kPose, "hxmap"), "rt/hxmap/pose");
+  EXPECT_STREQ(topicType(Topic::kPose)->m_typename, "geometry_msgs::msg::dds_::PoseStamped_");
+  EXPECT_STREQ(topicType(Topic::kTrajectory)->m_typename, "nav_msgs::msg::dds_::Path_");
+  EXPECT_FALSE(topicFromString("poses"));
+}
+
+TEST(DdsLoopback, PosesReachASecondParticipant) {
+  const std::string pre = prefix("pose");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader = Reader::create(*participant, topicType(Topic::kPose), topicName(Topic::kPose, pre), {false, false, 100});
+  ASSERT_TRUE(reader) << reader.message();
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kPose) > 0 && reader->matchedWriters() > 0; }, 20));
+
+  alg::TsdfMap map(tsdfParams());
+  Trajectory trajectory;
+  std::map<int64_t, Eigen::Isometry3d> sent;
+  for (int k = 0; k < 20; ++k) {
+    FrameResult r = frame(k);
+    if (k == 5) r.tracked = false;  // a lost frame publishes no pose
+    else sent[r.stamp_ns] = r.T_world_cam;
+    trajectory.push_back({r.stamp_ns, r.T_world_cam});
+    (*pub)->onFrame(r, map, trajectory, RunCounters{});
+  }
+  std::map<int64_t, PoseMessage> received;
+  ASSERT_TRUE(waitFor([&] {
+    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+      const PoseMessage m = fromWire(*static_cast<const geometry_msgs_msg_dds__PoseStamped_*>(s));
+      received[m.stamp_ns] = m;
+    });
+    return received.size() >= sent.size();
+  }, 20));
+  // Best effort on loopback inside one process loses nothing; each value is exact.
+  ASSERT_EQ(received.size(), 19u);
+  for (const auto& [stamp, m] : received) {
+    ASSERT_TRUE(sent.count(stamp)) << stamp;
+    EXPECT_EQ(m.frame_id, "map");
+    EXPECT_LT((m.T_world_cam.matrix() - sent[stamp].matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  }
+  EXPECT_EQ((*pub)->stats().poses, 19u);
+}
+
+TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
+  const std::string pre = prefix("map");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  alg::TsdfMap map(tsdfParams());
+  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.23f);
+  addSphere(map, {0.9f, 0.1f, 0.4f}, 0.12f);
+  const Trajectory trajectory{{1, poseAt(0)}, {2, poseAt(1)}};
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const alg::TriangleMesh full = alg::extractMesh(map, alg::MeshParams{});
+  ASSERT_GT(full.triangles.size(), 2000u);
+  const PublisherStats s1 = (*pub)->stats();
+  EXPECT_GT(s1.chunks, s1.regions);  // some regions needed several parts
+  EXPECT_EQ(s1.write_errors, 0u);
+
+  // Joins after everything was written: transient-local delivers it.
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader = Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  ASSERT_TRUE(reader) << reader.message();
+  ReceivedMap received;
+  ASSERT_TRUE(waitFor([&] {
+    drainMap(*reader, received);
+    return received.parts.size() >= s1.chunks;
+  }, 20)) << received.parts.size() << " of " << s1.chunks << " chunks";
+  EXPECT_EQ(received.bad, 0u);
+  auto [triangles, area] = received.totals();
+  EXPECT_EQ(triangles, full.triangles.size());
+  EXPECT_NEAR(area, full.surfaceArea(), 1e-5 * full.surfaceArea());
+
+  // The small sphere is carved away (free space observed there): its
+  // regions lose their triangles and must say so.
+  alg::TsdfPatch carve;
+  for (int z = -12; z <= 12; ++z) {
+    for (int y = -12; y <= 12; ++y) {
+      for (int x = -12; x <= 12; ++x) {
+        alg::TsdfPatch::Entry e;
+        e.voxel = map.voxelOf(Eigen::Vector3f(0.9f, 0.1f, 0.4f)) + Eigen::Vector3i(x, y, z);
+        int index = 0;
+        if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
+        e.sdf_m = map.truncation();
+        e.weight = 1000.0f;
+        carve.entries.push_back(e);
+      }
+    }
+  }
+  alg::applyPatch(map, carve);
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const alg::TriangleMesh carved = alg::extractMesh(map, alg::MeshParams{});
+  ASSERT_LT(carved.triangles.size(), full.triangles.size());
+  const PublisherStats s2 = (*pub)->stats();
+  EXPECT_GT(s2.chunks, s1.chunks);
+  // The reader that stayed sees the updates; a new one sees the new map only.
+  ASSERT_TRUE(waitFor([&] {
+    drainMap(*reader, received);
+    return received.totals().first == carved.triangles.size();
+  }, 20)) << received.totals().first << " vs " << carved.triangles.size();
+  auto reader2 = Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  ASSERT_TRUE(reader2) << reader2.message();
+  ReceivedMap late;
+  ASSERT_TRUE(waitFor([&] {
+    drainMap(*reader2, late);
+    return late.totals().first == carved.triangles.size() && late.parts.size() == received.parts.size();
+  }, 20)) << late.totals().first << " vs " << carved.triangles.size();
+  EXPECT_NEAR(late.totals().second, carved.surfaceArea(), 1e-5 * carved.surfaceArea());
+
+  // Trajectory and health are transient-local too.
+  auto path_reader = Reader::create(*participant, topicType(Topic::kTrajectory), topicName(Topic::kTrajectory, pre),
+                                    topicQos(Topic::kTrajectory));
+  ASSERT_TRUE(path_reader) << path_reader.message();
+  PathMessage path;
+  ASSERT_TRUE(waitFor([&] {
+    (void)path_reader->take([&](const void* s, const dds_sample_info_t&) {
+      path = fromWire(*static_cast<const nav_msgs_msg_dds__Path_*>(s));
+    });
+    return path.poses.size() == 2;
+  }, 20));
+  EXPECT_LT((path.poses[1].T_world_cam.matrix() - poseAt(1).matrix()).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(DdsLoopback, HealthCarriesTheRunnersCounters) {
+  const std::string pre = prefix("health");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  alg::TsdfMap map(tsdfParams());
+  Trajectory trajectory;
+  for (int k = 0; k < 6; ++k) {
+    FrameResult r = frame(k);
+    r.tracked = k != 2;
+    r.keyframe = k % 3 == 0;
+    r.stage_ms = {1, 2, 3, 4, 0};
+    trajectory.push_back({r.stamp_ns, r.T_world_cam});
+    (*pub)->onFrame(r, map, trajectory, RunCounters{3, 2, 5, 1, 12.5});
+  }
+  (*pub)->flush(map, trajectory, RunCounters{4, 2, 6, 1, 0});
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant);
+  auto reader = Reader::create(*participant, topicType(Topic::kHealth), topicName(Topic::kHealth, pre), topicQos(Topic::kHealth));
+  ASSERT_TRUE(reader) << reader.message();
+  HealthMessage h;
+  bool got = false;
+  ASSERT_TRUE(waitFor([&] {
+    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+      h = fromWire(*static_cast<const hxmap_msgs_msg_dds__Health_*>(s));
+      got = true;
+    });
+    return got;
+  }, 20));
+  EXPECT_EQ(h.frames, 6u);
+  EXPECT_EQ(h.frames_lost, 1u);
+  EXPECT_EQ(h.keyframes, 2u);
+  EXPECT_EQ(h.frames_dropped, 4u);
+  EXPECT_EQ(h.deadline_misses, 2u);
+  EXPECT_EQ(h.refine_jobs_done, 6u);
+  EXPECT_EQ(h.refine_jobs_shed, 1u);
+  EXPECT_FLOAT_EQ(h.frontend_ms_p50, 10.0f);
+  EXPECT_FLOAT_EQ(h.latency_ms_p50, 12.5f);
+}
+
+// `hxmap echo` in its own process: poses (best effort, published until the
+// echo has what it asked for) and a late-joining map.
+TEST(DdsLoopback, EchoInASeparateProcessPrintsThePublishedValues) {
+  const std::string pre = prefix("echo");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  alg::TsdfMap map(tsdfParams());
+  addSphere(map, {0.0f, 0.0f, 1.0f}, 0.2f);
+  Trajectory trajectory;
+
+  const std::string cmd =
+      fmt::format("'{}' -q echo pose --count 3 --timeout 30 --domain {} --prefix {}", HXMAP_BIN, kDomain, pre);
+  FILE* pipe = popen(cmd.c_str(), "r");
+  ASSERT_NE(pipe, nullptr);
+  std::string out;
+  std::atomic<bool> done{false};
+  std::thread collect([&] {
+    char buf[512];
+    while (fgets(buf, sizeof buf, pipe) != nullptr) out += buf;
+    done = true;
+  });
+  std::map<int64_t, Eigen::Isometry3d> sent;
+  for (int k = 0; k < 1500 && !done; ++k) {  // at most 30 s
+    const FrameResult r = frame(k);
+    sent[r.stamp_ns] = r.T_world_cam;
+    trajectory.push_back({r.stamp_ns, r.T_world_cam});
+    (*pub)->onFrame(r, map, trajectory, RunCounters{});
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  collect.join();
+  EXPECT_EQ(pclose(pipe), 0) << out;
+  std::istringstream lines(out);
+  std::string line;
+  int n = 0;
+  while (std::getline(lines, line)) {
+    std::istringstream in(line);
+    std::string word, stamp, frame_id, t_word, q_word;
+    Eigen::Vector3d t;
+    Eigen::Vector4d q;
+    in >> word >> stamp >> frame_id >> t_word >> t.x() >> t.y() >> t.z() >> q_word >> q[0] >> q[1] >> q[2] >> q[3];
+    ASSERT_EQ(word, "pose") << line;
+    ASSERT_EQ(frame_id, "map");
+    const size_t dot = stamp.find('.');
+    const int64_t ns = std::stoll(stamp.substr(0, dot)) * 1'000'000'000 + std::stoll(stamp.substr(dot + 1));
+    ASSERT_TRUE(sent.count(ns)) << line;
+    EXPECT_LT((t - sent[ns].translation()).cwiseAbs().maxCoeff(), 1.5e-6) << line;
+    const Eigen::Quaterniond qs(sent[ns].linear());
+    EXPECT_NEAR(std::abs(q[0] * qs.x() + q[1] * qs.y() + q[2] * qs.z() + q[3] * qs.w()), 1.0, 1e-5) << line;
+    ++n;
+  }
+  EXPECT_EQ(n, 3);
+
+  // The map, written before the echo starts.
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const PublisherStats s = (*pub)->stats();
+  const std::string map_cmd = fmt::format("'{}' -q echo map --count {} --timeout 30 --domain {} --prefix {}", HXMAP_BIN,
+                                          s.chunks, kDomain, pre);
+  FILE* map_pipe = popen(map_cmd.c_str(), "r");
+  ASSERT_NE(map_pipe, nullptr);
+  std::string map_out;
+  char buf[512];
+  while (fgets(buf, sizeof buf, map_pipe) != nullptr) map_out += buf;
+  EXPECT_EQ(pclose(map_pipe), 0) << map_out;
+  size_t triangles = 0, chunks = 0;
+  std::istringstream map_lines(map_out);
+  while (std::getline(map_lines, line)) {
+    const size_t at = line.find(" triangles ");
+    ASSERT_NE(at, std::string::npos) << line;
+    triangles += std::stoul(line.substr(at + 11));
+    ++chunks;
+  }
+  EXPECT_EQ(chunks, s.chunks);
+  EXPECT_EQ(triangles, alg::extractMesh(map, alg::MeshParams{}).triangles.size());
+}
+
+TEST(DdsErrors, BadDomainIsAClearError) {
+  PublisherParams p = params(prefix("bad"));
+  p.domain_id = 4000;
+  auto pub = Publisher::start(p);
+  ASSERT_FALSE(pub);
+  EXPECT_NE(pub.message().find("domain 4000"), std::string::npos) << pub.message();
+  p.domain_id = kDomain;
+  p.region_blocks = 0;
+  auto pub2 = Publisher::start(p);
+  ASSERT_FALSE(pub2);
+  EXPECT_NE(pub2.message().find("region_blocks"), std::string::npos) << pub2.message();
+}
+
+}  // namespace
+}  // namespace hxmap::rt::dds
