@@ -43,8 +43,10 @@ if(PkgConfig_FOUND)
   pkg_check_modules(LIBCAMERA QUIET IMPORTED_TARGET libcamera)
   pkg_check_modules(OPENNI2 QUIET IMPORTED_TARGET libopenni2)
 endif()
-hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver (not implemented yet)" LIBV4L2_FOUND
-  "libv4l2 not found (apt install libv4l-dev)")
+include(CheckIncludeFileCXX)
+check_include_file_cxx(linux/videodev2.h HXMAP_HAVE_VIDEODEV2_H)
+hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver (kernel video4linux2 API)" HXMAP_HAVE_VIDEODEV2_H
+  "linux/videodev2.h not found (apt install linux-libc-dev)")
 hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver (not implemented yet)" OPENNI2_FOUND
   "OpenNI2 not found (apt install libopenni2-dev)")
 hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver (not implemented yet)" LIBCAMERA_FOUND
