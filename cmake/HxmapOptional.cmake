@@ -47,9 +47,9 @@ include(CheckIncludeFileCXX)
 check_include_file_cxx(linux/videodev2.h HXMAP_HAVE_VIDEODEV2_H)
 hxmap_optional(HXMAP_WITH_V4L2 "V4L2 camera driver (kernel video4linux2 API)" HXMAP_HAVE_VIDEODEV2_H
   "linux/videodev2.h not found (apt install linux-libc-dev)")
-hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver (not implemented yet)" OPENNI2_FOUND
+hxmap_optional(HXMAP_WITH_OPENNI2 "OpenNI2 camera driver and .oni playback" OPENNI2_FOUND
   "OpenNI2 not found (apt install libopenni2-dev)")
-hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera driver (not implemented yet)" LIBCAMERA_FOUND
+hxmap_optional(HXMAP_WITH_LIBCAMERA "libcamera color driver (CSI cameras)" LIBCAMERA_FOUND
   "libcamera not found (apt install libcamera-dev)")
 find_package(CycloneDDS QUIET)
 find_program(HXMAP_IDLC idlc)
