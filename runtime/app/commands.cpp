@@ -547,6 +547,22 @@ int echoCommand(const EchoOptions&) {
 }
 #endif
 
+drv::RigCalibration rigCalibration(const HxmapConfig& c) {
+  const RigConfig& g = c.rig;
+  drv::RigCalibration cal;
+  cal.color = {g.color_fx, g.color_fy, g.color_cx, g.color_cy, g.color_width, g.color_height,
+               {g.color_k1, g.color_k2, g.color_p1, g.color_p2, g.color_k3}};
+  cal.depth = {g.depth_fx, g.depth_fy, g.depth_cx, g.depth_cy, g.depth_width, g.depth_height,
+               {g.depth_k1, g.depth_k2, g.depth_p1, g.depth_p2, g.depth_k3}};
+  const Eigen::Quaterniond q(g.depth_to_color_qw, g.depth_to_color_qx, g.depth_to_color_qy, g.depth_to_color_qz);
+  cal.T_color_depth.linear() = q.normalized().toRotationMatrix();
+  cal.T_color_depth.translation() = Eigen::Vector3d(g.depth_to_color_tx, g.depth_to_color_ty, g.depth_to_color_tz);
+  cal.depth_scale = g.depth_scale;
+  cal.registered = g.registered;
+  cal.max_depth_m = g.max_depth_m;
+  return cal;
+}
+
 int configCommand(const std::string& config) {
   auto c = config.empty() ? Expected<HxmapConfig>(HxmapConfig{}) : loadConfig(config);
   if (!c) {

@@ -6,6 +6,7 @@
 
 #include "hxmap/config/config.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/sync/sync.hpp"
 
 namespace hxmap::rt {
 
@@ -60,5 +61,8 @@ int echoCommand(const EchoOptions& options);
 
 /// The frontend's parameters from a configuration (what `hxmap run` uses).
 FrontendParams frontendParams(const HxmapConfig& config);
+
+/// A live camera pair's calibration from the rig: section.
+drv::RigCalibration rigCalibration(const HxmapConfig& config);
 
 }  // namespace hxmap::rt

@@ -260,3 +260,38 @@ TEST(EvalCommand, IdenticalTrajectoriesAndRigidOffset) {
 
 }  // namespace
 }  // namespace hxmap::rt
+
+namespace hxmap::rt {
+namespace {
+
+TEST(RigConfig, TheRigSectionBecomesACalibrationFramesRegisterWith) {
+  const std::string yaml =
+      "rig:\n  color_fx: 300\n  color_fy: 300\n  color_cx: 159.5\n  color_cy: 119.5\n  color_width: 320\n"
+      "  color_height: 240\n  depth_fx: 300\n  depth_fy: 300\n  depth_cx: 159.5\n  depth_cy: 119.5\n"
+      "  depth_width: 320\n  depth_height: 240\n  depth_to_color_tx: 0.04\n  depth_scale: 5000\n";
+  auto c = loadConfigFromString(yaml, "rig.yaml");
+  ASSERT_TRUE(c) << c.message();
+  const drv::RigCalibration cal = rigCalibration(*c);
+  EXPECT_DOUBLE_EQ(cal.color.fx, 300);
+  EXPECT_EQ(cal.depth.width, 320);
+  EXPECT_NEAR(cal.T_color_depth.translation().x(), 0.04, 1e-12);
+  EXPECT_LT((cal.T_color_depth.linear() - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  auto assembler = drv::FrameAssembler::create(cal);
+  ASSERT_TRUE(assembler) << assembler.message();
+  // A plane at 2 m (raw 10000 at 5000 per meter) lands 300 * 0.04 / 2 = 6 px to the right.
+  drv::ColorImage color{5, 0, cv::Mat(240, 320, CV_8UC3, cv::Scalar(9, 9, 9))};
+  drv::DepthImage depth{6, 0, cv::Mat(240, 320, CV_16UC1, cv::Scalar(10000))};
+  auto f = assembler->assemble(color, depth, 0);
+  ASSERT_TRUE(f) << f.message();
+  EXPECT_FLOAT_EQ(f->depth.at<float>(100, 200), 2.0f);
+  EXPECT_EQ(f->depth.at<float>(100, 3), 0.0f);
+
+  auto bad = loadConfigFromString("rig:\n  depth_to_color_qw: 0.5\n", "bad_rig.yaml");
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.message().find("bad_rig.yaml: rig.depth_to_color_q{x,y,z,w}: the quaternion's norm is 0.500000"),
+            std::string::npos)
+      << bad.message();
+}
+
+}  // namespace
+}  // namespace hxmap::rt

@@ -202,6 +202,42 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("deadline_margin_ms", c.runtime.deadline_margin_ms, 0, 1000);
   v.integer("shed_after_periods", c.runtime.shed_after_periods, 1, 100000);
 
+  auto& g = c.rig;
+  v.section("rig");
+  v.number("color_fx", g.color_fx, 1, 1e5);
+  v.number("color_fy", g.color_fy, 1, 1e5);
+  v.number("color_cx", g.color_cx, -1e4, 1e5);
+  v.number("color_cy", g.color_cy, -1e4, 1e5);
+  v.integer("color_width", g.color_width, 8, 16384);
+  v.integer("color_height", g.color_height, 8, 16384);
+  v.number("color_k1", g.color_k1, -100, 100);
+  v.number("color_k2", g.color_k2, -100, 100);
+  v.number("color_p1", g.color_p1, -100, 100);
+  v.number("color_p2", g.color_p2, -100, 100);
+  v.number("color_k3", g.color_k3, -100, 100);
+  v.number("depth_fx", g.depth_fx, 1, 1e5);
+  v.number("depth_fy", g.depth_fy, 1, 1e5);
+  v.number("depth_cx", g.depth_cx, -1e4, 1e5);
+  v.number("depth_cy", g.depth_cy, -1e4, 1e5);
+  v.integer("depth_width", g.depth_width, 8, 16384);
+  v.integer("depth_height", g.depth_height, 8, 16384);
+  v.number("depth_k1", g.depth_k1, -100, 100);
+  v.number("depth_k2", g.depth_k2, -100, 100);
+  v.number("depth_p1", g.depth_p1, -100, 100);
+  v.number("depth_p2", g.depth_p2, -100, 100);
+  v.number("depth_k3", g.depth_k3, -100, 100);
+  v.number("depth_to_color_tx", g.depth_to_color_tx, -10, 10);
+  v.number("depth_to_color_ty", g.depth_to_color_ty, -10, 10);
+  v.number("depth_to_color_tz", g.depth_to_color_tz, -10, 10);
+  v.number("depth_to_color_qx", g.depth_to_color_qx, -1, 1);
+  v.number("depth_to_color_qy", g.depth_to_color_qy, -1, 1);
+  v.number("depth_to_color_qz", g.depth_to_color_qz, -1, 1);
+  v.number("depth_to_color_qw", g.depth_to_color_qw, -1, 1);
+  v.number("depth_scale", g.depth_scale, 1e-3, 1e6);
+  v.boolean("registered", g.registered);
+  v.number("max_sync_gap_s", g.max_sync_gap_s, 0, 1);
+  v.number("max_depth_m", g.max_depth_m, 0, 100);
+
   auto& d = c.dds;
   v.section("dds");
   v.boolean("enabled", d.enabled);
@@ -394,6 +430,12 @@ Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::s
   }
   if (config.tsdf.truncation_m < 2 * config.tsdf.voxel_size_m) {
     errors.push_back(source + ": tsdf.truncation_m must be at least 2 * tsdf.voxel_size_m");
+  }
+  const auto& g = config.rig;
+  const double qn = std::sqrt(g.depth_to_color_qx * g.depth_to_color_qx + g.depth_to_color_qy * g.depth_to_color_qy +
+                              g.depth_to_color_qz * g.depth_to_color_qz + g.depth_to_color_qw * g.depth_to_color_qw);
+  if (std::abs(qn - 1.0) > 1e-3) {
+    errors.push_back(fmt::format("{}: rig.depth_to_color_q{{x,y,z,w}}: the quaternion's norm is {:.6f}, not 1", source, qn));
   }
   if (!errors.empty()) return Error{fmt::format("{} problem(s) in the configuration:\n{}", errors.size(), fmt::join(errors, "\n"))};
   return config;

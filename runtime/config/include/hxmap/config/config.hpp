@@ -71,6 +71,27 @@ struct RefineConfig {
   alg::ImplicitParams implicit;
 };
 
+/// A live color + depth camera pair (drivers/sync): intrinsics and
+/// distortion of each camera, the depth camera's pose in the color camera's
+/// frame, the depth unit, and how far apart in time a color and a depth
+/// frame may be to pair. With `registered` the device aligns depth to color
+/// itself and the depth_* intrinsics and extrinsics are not used.
+struct RigConfig {
+  double color_fx = 525.0, color_fy = 525.0, color_cx = 319.5, color_cy = 239.5;
+  int color_width = 640, color_height = 480;
+  double color_k1 = 0, color_k2 = 0, color_p1 = 0, color_p2 = 0, color_k3 = 0;
+  double depth_fx = 575.0, depth_fy = 575.0, depth_cx = 319.5, depth_cy = 239.5;
+  int depth_width = 640, depth_height = 480;
+  double depth_k1 = 0, depth_k2 = 0, depth_p1 = 0, depth_p2 = 0, depth_k3 = 0;
+  /// Depth camera to color camera: translation (m) and rotation quaternion.
+  double depth_to_color_tx = 0.0, depth_to_color_ty = 0.0, depth_to_color_tz = 0.0;
+  double depth_to_color_qx = 0.0, depth_to_color_qy = 0.0, depth_to_color_qz = 0.0, depth_to_color_qw = 1.0;
+  double depth_scale = 1000.0;  ///< raw depth units per meter (UVC Z16 and OpenNI2: 1000)
+  bool registered = false;
+  double max_sync_gap_s = 0.02;
+  double max_depth_m = 0;       ///< 0 = no limit
+};
+
 /// Publishing over Cyclone DDS (runtime/dds): `hxmap run` publishes when
 /// enabled (or with --dds). Topics rt/<topic_prefix>/{pose, trajectory, map,
 /// health}; the network comes from CYCLONEDDS_URI (config/cyclonedds.xml).
@@ -101,6 +122,7 @@ struct HxmapConfig {
   SyntheticConfig synthetic;
   EvalConfig eval;
   RuntimeConfig runtime;
+  RigConfig rig;
   DdsConfig dds;
 };
 
