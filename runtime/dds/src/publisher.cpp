@@ -161,6 +161,8 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
   if (due(last_path_ns_, params_.trajectory_period_s)) queuePath(trajectory, result.stamp_ns, false);
   if (last_health_ns_ == 0) last_health_ns_ = t0;
   if (static_cast<double>(t0 - last_health_ns_) >= params_.health_period_s * 1e9) queueHealth(counters, result.stamp_ns, false);
+  // Bounded on long runs: the figures cover the last 50k to 100k frames.
+  if (frame_cost_ms_.size() >= 100000) frame_cost_ms_.erase(frame_cost_ms_.begin(), frame_cost_ms_.begin() + 50000);
   frame_cost_ms_.push_back(static_cast<double>(nowNs() - t0) * 1e-6);
 }
 

@@ -57,7 +57,7 @@ struct PublisherStats {
   uint64_t items_dropped = 0;   ///< work items the full ring refused (data delayed, not lost)
   uint64_t write_errors = 0;
   std::string last_error;
-  double frame_cost_p50_ms = 0, frame_cost_max_ms = 0;  ///< onFrame on the calling thread
+  double frame_cost_p50_ms = 0, frame_cost_max_ms = 0;  ///< onFrame on the calling thread (recent frames)
   double snapshot_ms_total = 0;                         ///< of which copying changed regions
   double mesh_ms_total = 0;                             ///< publisher thread: meshing and writing chunks
 };
