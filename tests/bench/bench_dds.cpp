@@ -29,6 +29,7 @@
 #include <fmt/format.h>
 
 #include "commands.hpp"
+#include "dds_loopback.hpp"
 #include "dds_glue.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dds/publisher.hpp"
@@ -131,21 +132,11 @@ std::string finish(Child& c) {
   return out;
 }
 
-template <class Pred>
-bool waitFor(Pred pred, double timeout_s) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  return pred();
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc >= 5 && std::string(argv[1]) == "--child") return subscriber(argv[2], argv[3], std::atoi(argv[4]));
-  setenv("CYCLONEDDS_URI", "file://" HXMAP_SOURCE_DIR "/config/cyclonedds-loopback.xml", 0);
+  setenv("CYCLONEDDS_URI", kLoopbackDdsUri, 0);
   const std::string tum_dir = argc > 1 ? argv[1] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
   HxmapConfig config;
   if (argc > 2) {

@@ -16,6 +16,7 @@
 
 #include <fmt/format.h>
 
+#include "dds_loopback.hpp"
 #include "hxmap/dds/entity.hpp"
 #include "hxmap/dds/messages.hpp"
 #include "hxmap/dds/publisher.hpp"
@@ -30,7 +31,7 @@ constexpr uint32_t kDomain = 77;
 class Loopback : public ::testing::Environment {
  public:
   void SetUp() override {
-    setenv("CYCLONEDDS_URI", "file://" HXMAP_SOURCE_DIR "/config/cyclonedds-loopback.xml", 1);
+    setenv("CYCLONEDDS_URI", kLoopbackDdsUri, 1);
   }
 };
 const auto* const kEnv = ::testing::AddGlobalTestEnvironment(new Loopback);
@@ -96,16 +97,6 @@ alg::TsdfParams tsdfParams() {
   p.voxel_size_m = 0.02;
   p.truncation_m = 0.08;
   return p;
-}
-
-template <class Pred>
-bool waitFor(Pred pred, double timeout_s) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  return pred();
 }
 
 // The map as a reader holds it: newest revision of every (region, part).

@@ -29,8 +29,7 @@ struct LibcameraCamera::Impl {
     void* start = MAP_FAILED;
     size_t length = 0;
   };
-  std::vector<Mapping> mappings;  ///< one per buffer (first plane; packed formats have one)
-  std::map<const lc::FrameBuffer*, size_t> buffer_index;
+  std::vector<Mapping> mappings;  ///< one per buffer (first plane; packed formats have one); a request's cookie indexes it
   std::string id;
   int width = 0, height = 0;
   unsigned stride = 0;
@@ -139,7 +138,6 @@ Expected<std::unique_ptr<LibcameraCamera>> LibcameraCamera::open(const Libcamera
     const size_t offset = plane.offset == lc::FrameBuffer::Plane::kInvalidOffset ? 0 : plane.offset;
     void* p = mmap(nullptr, offset + length, PROT_READ, MAP_SHARED, plane.fd.get(), 0);
     if (p == MAP_FAILED) return Error{fmt::format("libcamera: cannot map a buffer of '{}': {}", im.id, strerror(errno))};
-    im.buffer_index[buffer.get()] = im.mappings.size();
     im.mappings.push_back({p, offset + length});
     std::unique_ptr<lc::Request> req = im.camera->createRequest(im.mappings.size() - 1);
     if (!req || req->addBuffer(im.stream, buffer.get()) != 0) {
@@ -183,7 +181,7 @@ Expected<LibcameraFrame> LibcameraCamera::grab(double timeout_s) {
     bool ok = md.status == lc::FrameMetadata::FrameSuccess;
     std::string why = ok ? "" : "the camera flagged the frame as failed";
     if (ok) {
-      const Impl::Mapping& m = im.mappings[im.buffer_index.at(buffer)];
+      const Impl::Mapping& m = im.mappings[req->cookie()];
       const lc::FrameBuffer::Plane& plane = buffer->planes()[0];
       const size_t offset = plane.offset == lc::FrameBuffer::Plane::kInvalidOffset ? 0 : plane.offset;
       const uint8_t* data = static_cast<const uint8_t*>(m.start) + offset;
