@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "hxmap/camera/camera_source.hpp"
 #include "hxmap/config/config.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/parsers.hpp"
@@ -124,6 +125,38 @@ int runCommand(const RunOptions& o) {
     return 2;
   }
   HxmapConfig& c = *config;
+  if (!o.camera.empty() && !o.dataset.empty()) {
+    spdlog::error("run: give --dataset or --camera, not both");
+    return 2;
+  }
+  if (o.camera.empty() && o.dataset.empty()) {
+    spdlog::error("run: give --dataset FOLDER or --camera SPEC");
+    return 2;
+  }
+  // A live camera: opened first, so a missing device fails before anything is written.
+  std::unique_ptr<CameraSource> camera;
+  if (!o.camera.empty()) {
+    auto spec = parseCameraSpec(o.camera);
+    if (!spec) {
+      spdlog::error("{}", spec.message());
+      return 2;
+    }
+    CameraSourceOptions co;
+    co.calibration = rigCalibration(c);
+    co.max_sync_gap_s = c.rig.max_sync_gap_s;
+    co.fps = c.rig.fps;
+    co.reconnect_timeout_s = c.rig.reconnect_timeout_s;
+    co.lost_timeout_s = c.rig.lost_timeout_s;
+    auto opened = openCameraSource(*spec, co);
+    if (!opened) {
+      spdlog::error("{}", opened.message());
+      return 2;
+    }
+    camera = std::move(*opened);
+    const auto& k = camera->camera();
+    spdlog::info("camera {}: {}x{} at {:.0f} FPS, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f}", camera->name(), k.width,
+                 k.height, camera->fps(), k.fx, k.fy, k.cx, k.cy);
+  }
   drv::DatasetOptions dopt;
   dopt.skip_bad = o.skip_bad || c.dataset.skip_bad_frames;
   dopt.undistort = c.dataset.undistort;
@@ -133,16 +166,24 @@ int runCommand(const RunOptions& o) {
                               {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
   dopt.camera = user_cam;
   dopt.force_camera = c.camera.override_dataset;
-  auto dataset = drv::Dataset::open(o.dataset, dopt);
-  if (!dataset) {
-    spdlog::error("{}", dataset.message());
-    return 2;
+  std::unique_ptr<drv::Dataset> dataset;  // null on a camera run
+  if (!camera) {
+    auto opened = drv::Dataset::open(o.dataset, dopt);
+    if (!opened) {
+      spdlog::error("{}", opened.message());
+      return 2;
+    }
+    dataset = std::move(*opened);
+    const drv::Dataset& ds = *dataset;
+    const auto& k = ds.camera();
+    spdlog::info("dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
+                 ds.dir(), ds.size(), k.width, k.height, k.fx, k.fy, k.cx, k.cy, ds.cameraSource(),
+                 ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
   }
-  const drv::Dataset& ds = **dataset;
-  const auto& cam = ds.camera();
-  spdlog::info("dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
-               ds.dir(), ds.size(), cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, ds.cameraSource(),
-               ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
+  const alg::PinholeCamera cam = camera ? camera->camera() : dataset->camera();
+  const Trajectory no_ground_truth;
+  const Trajectory& ground_truth = dataset ? dataset->groundTruth() : no_ground_truth;
+  const bool realtime = o.realtime || camera;
   std::error_code ec;
   fs::create_directories(o.out_dir, ec);
   if (ec) {
@@ -172,20 +213,21 @@ int runCommand(const RunOptions& o) {
   }
 #endif
 
-  // Frames to process.
+  // Frames to process (of a dataset).
   std::vector<size_t> frames;
   const int max_frames = o.max_frames >= 0 ? o.max_frames : c.dataset.max_frames;
-  for (size_t i = static_cast<size_t>(c.dataset.first_frame); i < ds.size(); i += c.dataset.stride) {
+  for (size_t i = static_cast<size_t>(c.dataset.first_frame); dataset && i < dataset->size(); i += c.dataset.stride) {
     if (max_frames > 0 && frames.size() >= static_cast<size_t>(max_frames)) break;
     frames.push_back(i);
   }
-  if (frames.empty()) {
-    spdlog::error("{}: no frames to process (first_frame {} of {})", ds.dir(), c.dataset.first_frame, ds.size());
+  if (dataset && frames.empty()) {
+    spdlog::error("{}: no frames to process (first_frame {} of {})", dataset->dir(), c.dataset.first_frame,
+                  dataset->size());
     return 2;
   }
-  if (c.dataset.initial_pose == "ground_truth" && !ds.groundTruth().empty()) {
+  if (dataset && c.dataset.initial_pose == "ground_truth" && !ground_truth.empty()) {
     Eigen::Isometry3d T0;
-    if (alg::interpolatePose(ds.groundTruth(), ds.stamp(frames[0]), 200'000'000, T0)) {
+    if (alg::interpolatePose(ground_truth, dataset->stamp(frames[0]), 200'000'000, T0)) {
       frontend.setInitialPose(T0);
       spdlog::info("first pose taken from the ground truth (the map is in the ground truth's frame)");
     }
@@ -217,9 +259,10 @@ int runCommand(const RunOptions& o) {
     total_ms.push_back(sum);
     return sum;
   };
-  if (o.realtime) {
-    // Frames are decoded up front (a camera delivers decoded frames), then
-    // played at their recorded rate through the runtime's threads.
+  if (realtime) {
+    // A dataset's frames are decoded up front (a camera delivers decoded
+    // frames), then played at their recorded rate through the runtime's
+    // threads; a camera's frames go through them as they come.
     const double mib = static_cast<double>(frames.size()) * cam.width * cam.height * 7 / (1 << 20);
     if (mib > 8192) {
       spdlog::error("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames", frames.size(), mib);
@@ -228,7 +271,7 @@ int runCommand(const RunOptions& o) {
     std::vector<RgbdFrame> loaded;
     Progress loading("loading", frames.size());
     for (size_t k = 0; k < frames.size() && !g_stop.load(); ++k) {
-      auto frame = ds.load(frames[k]);
+      auto frame = dataset->load(frames[k]);
       if (!frame) {
         if (!dopt.skip_bad) {
           spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
@@ -254,13 +297,18 @@ int runCommand(const RunOptions& o) {
       };
     }
 #endif
-    // Under systemd (Type=notify): ready once the frames are loaded, then a
-    // watchdog heartbeat from the status loop while the run is healthy.
-    sdNotify(fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
+    // Under systemd (Type=notify): ready once the frames are loaded (the
+    // camera streams), then a watchdog heartbeat from the status loop while
+    // the run is healthy.
+    sdNotify(camera ? fmt::format("READY=1\nSTATUS=mapping from {}", camera->name())
+                    : fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
     const bool watchdog = sdWatchdogUsec() > 0;
-    const RealtimeStats rs = runRealtime(loaded, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace, [&] {
+    PlaybackSource playback(loaded, o.fps);
+    FrameSource& source = camera ? static_cast<FrameSource&>(*camera) : playback;
+    const RealtimeStats rs = runRealtime(source, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace, [&] {
       if (watchdog) sdNotify("WATCHDOG=1");
     });
+    if (!rs.source_error.empty()) first_error = rs.source_error;
     sdNotify("STOPPING=1\nSTATUS=writing outputs");
     for (const auto& r : rs.results) tally(r);
     realtime_report = rs.report;
@@ -268,13 +316,13 @@ int runCommand(const RunOptions& o) {
     end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed, rs.refine_jobs_shed, 0};
   }
   Progress progress("mapping", frames.size());
-  for (size_t k = 0; k < frames.size() && !o.realtime; ++k) {
+  for (size_t k = 0; k < frames.size() && !realtime; ++k) {
     if (g_stop.load()) {
       stopped = true;
       break;
     }
     const auto t_load = std::chrono::steady_clock::now();
-    auto frame = ds.load(frames[k]);
+    auto frame = dataset->load(frames[k]);
     if (!frame) {
       if (!dopt.skip_bad) {
         first_error = frame.message();
@@ -326,7 +374,7 @@ int runCommand(const RunOptions& o) {
   if (publisher) {
     // Everything mapped goes out before the program ends (transient-local
     // readers that join while it is still up get the whole map).
-    if (!o.realtime) end_counters = {bad_frames, 0, refine.jobs, 0, 0};
+    if (!realtime) end_counters = {bad_frames, 0, refine.jobs, 0, 0};
     publisher->flush(frontend.map(), frontend.trajectory(), end_counters);
     dds_text = publisherStatsText(publisher->stats(), wall_s);
   }
@@ -346,8 +394,9 @@ int runCommand(const RunOptions& o) {
     exit_code = 1;
   }
 
-  std::string summary = fmt::format("hxmap run summary\n=================\ndataset: {} ({} frames)\n", ds.dir(),
-                                    ds.size());
+  std::string summary = "hxmap run summary\n=================\n";
+  summary += dataset ? fmt::format("dataset: {} ({} frames)\n", dataset->dir(), dataset->size())
+                     : fmt::format("camera: {}\n", camera->name());
   summary += fmt::format("frames: processed {}, tracked {}, lost {}, unreadable skipped {}, keyframes {}\n",
                          total_ms.size(), tracked, frontend.lostFrames(), bad_frames, frontend.keyframes());
   const auto mem = frontend.map().memory();
@@ -362,16 +411,16 @@ int runCommand(const RunOptions& o) {
   }
   const auto pt = percentiles(total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
-  if (o.realtime) {
+  if (realtime) {
     summary += realtime_report;
   } else {
     summary += fmt::format("throughput: {:.1f} frames/s over {:.1f} s wall (image loading included, {} threads)\n",
                            static_cast<double>(total_ms.size()) / wall_s, wall_s,
                            c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
   }
-  if (!ds.groundTruth().empty()) summary += trajectoryMetricsText(frontend.trajectory(), ds.groundTruth(), c.eval.rpe_delta_s);
-  const fs::path gt_mesh_path = fs::path(ds.dir()) / "gt_mesh.ply";
-  if (!o.no_mesh_eval && fs::exists(gt_mesh_path)) {
+  if (!ground_truth.empty()) summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
+  const fs::path gt_mesh_path = dataset ? fs::path(dataset->dir()) / "gt_mesh.ply" : fs::path();
+  if (dataset && !o.no_mesh_eval && fs::exists(gt_mesh_path)) {
     auto gt_mesh = drv::readPly(gt_mesh_path.string());
     if (!gt_mesh) {
       spdlog::error("{}", gt_mesh.message());
@@ -380,8 +429,9 @@ int runCommand(const RunOptions& o) {
       // Ground truth counts as observed only from the poses of the frames
       // this run processed (a --max-frames run sees less of the scene).
       alg::ObservedBy observed{cam, {}, c.preprocess.max_depth_m};
-      const int64_t first_ns = ds.stamp(frames.front()) - 50'000'000, last_ns = ds.stamp(frames.back()) + 50'000'000;
-      for (const auto& p : ds.groundTruth()) {
+      const int64_t first_ns = dataset->stamp(frames.front()) - 50'000'000;
+      const int64_t last_ns = dataset->stamp(frames.back()) + 50'000'000;
+      for (const auto& p : ground_truth) {
         if (p.stamp_ns >= first_ns && p.stamp_ns <= last_ns) observed.poses.push_back(p);
       }
       const auto mp = meshParams(c.eval);

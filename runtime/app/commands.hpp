@@ -12,6 +12,7 @@ namespace hxmap::rt {
 
 struct RunOptions {
   std::string dataset;
+  std::string camera;   ///< live camera spec (runtime/camera); instead of dataset, always real time
   std::string config;   ///< empty = built-in defaults
   std::string out_dir = "hxmap_out";
   int max_frames = -1;  ///< -1 = from config

@@ -16,8 +16,14 @@ int main(int argc, char** argv) {
   app.add_flag("-v,--verbose", verbose, "per-frame details on stderr");
 
   hxmap::rt::RunOptions run;
-  auto* run_cmd = app.add_subcommand("run", "map a dataset folder (TUM or Replica layout) offline, as fast as possible");
-  run_cmd->add_option("--dataset", run.dataset, "dataset folder")->required();
+  auto* run_cmd = app.add_subcommand(
+      "run", "map a dataset folder (TUM or Replica layout) offline as fast as possible, or in real time; or a live camera");
+  auto* dataset_opt = run_cmd->add_option("--dataset", run.dataset, "dataset folder");
+  auto* camera_opt = run_cmd->add_option(
+      "--camera", run.camera,
+      "live camera, mapped in real time until stopped (Ctrl-C): v4l2:COLOR_DEV+DEPTH_DEV, openni2[:URI|file.oni], "
+      "libcamera[:ID]+v4l2:DEPTH_DEV; calibration from the rig: section");
+  dataset_opt->excludes(camera_opt);
   run_cmd->add_option("--config", run.config, "YAML configuration (default: built-in defaults)");
   run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
   run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames");

@@ -237,6 +237,9 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.boolean("registered", g.registered);
   v.number("max_sync_gap_s", g.max_sync_gap_s, 0, 1);
   v.number("max_depth_m", g.max_depth_m, 0, 100);
+  v.number("fps", g.fps, 1, 1000);
+  v.number("reconnect_timeout_s", g.reconnect_timeout_s, 0, 3600);
+  v.number("lost_timeout_s", g.lost_timeout_s, 0.1, 3600);
 
   auto& d = c.dds;
   v.section("dds");

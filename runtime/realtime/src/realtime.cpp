@@ -48,31 +48,58 @@ void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t s
   }
 }
 
+PlaybackSource::PlaybackSource(const std::vector<RgbdFrame>& frames, double fps) : frames_(frames), due_ns_(frames.size()) {
+  for (size_t i = 0; i < frames.size(); ++i) {
+    due_ns_[i] = fps > 0 ? static_cast<int64_t>(std::llround(static_cast<double>(i) * 1e9 / fps))
+                         : frames[i].stamp_ns - frames[0].stamp_ns;
+  }
+  if (fps > 0) {
+    fps_ = fps;
+  } else if (frames.size() > 1 && due_ns_.back() > 0) {
+    fps_ = static_cast<double>(frames.size() - 1) * 1e9 / static_cast<double>(due_ns_.back());
+  }
+}
+
+Expected<std::optional<RgbdFrame>> PlaybackSource::next(const std::atomic<bool>& stop) {
+  const int64_t now = std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+  if (next_ == 0) t0_ns_ = now;
+  if (next_ >= frames_.size() || stop.load()) return std::optional<RgbdFrame>{};
+  // Sleep in short steps so a stop is seen even across a long gap in the stamps.
+  const Clock::time_point due{std::chrono::nanoseconds(t0_ns_ + due_ns_[next_])};
+  while (Clock::now() < due && !stop.load()) std::this_thread::sleep_until(std::min(due, Clock::now() + std::chrono::milliseconds(50)));
+  if (stop.load()) return std::optional<RgbdFrame>{};
+  return std::optional<RgbdFrame>{frames_[next_++]};  // cv::Mat copies share the pixels
+}
+
 RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& frontend, const RealtimeOptions& options,
                           const std::atomic<bool>& stop, TraceRecorder* trace, const std::function<void()>& heartbeat) {
+  if (frames.empty()) return {};
+  PlaybackSource source(frames, options.fps);
+  return runRealtime(source, frontend, options, stop, trace, heartbeat);
+}
+
+RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const RealtimeOptions& options,
+                          const std::atomic<bool>& stop, TraceRecorder* trace, const std::function<void()>& heartbeat) {
   RealtimeStats stats;
-  if (frames.empty()) return stats;
-  // Due times: the recorded stamps, or a fixed rate.
-  std::vector<int64_t> due_ns(frames.size());
-  for (size_t i = 0; i < frames.size(); ++i) {
-    due_ns[i] = options.fps > 0 ? static_cast<int64_t>(std::llround(static_cast<double>(i) * 1e9 / options.fps))
-                                : frames[i].stamp_ns - frames[0].stamp_ns;
-  }
   SchedulerParams sp = options.scheduler;
-  if (options.fps > 0) {
-    sp.target_fps = options.fps;
-  } else if (frames.size() > 1 && due_ns.back() > 0) {
-    sp.target_fps = static_cast<double>(frames.size() - 1) * 1e9 / static_cast<double>(due_ns.back());
-  }
+  if (source.fps() > 0) sp.target_fps = source.fps();
   Scheduler sched(sp);
 
-  const Clock::time_point t0 = Clock::now() + std::chrono::milliseconds(20);
+  const Clock::time_point t0 = Clock::now();
   auto now_ns = [&] { return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t0).count(); };
 
-  LatestSlot<size_t> sensor_slot;
-  std::atomic<uint64_t> published{0};
+  // A frame with its arrival time and its index in the run (moved through
+  // the slot; the images are shared, never copied).
+  struct Arrival {
+    RgbdFrame frame;
+    int64_t arrival_ns = 0;
+    int64_t index = 0;
+  };
+  LatestSlot<Arrival> sensor_slot;
+  std::atomic<uint64_t> published{0}, frames_in{0};
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
-  std::vector<int64_t> arrival_ns(frames.size(), 0);  // written by the sensor before publish
+  int64_t first_arrival_ns = 0, last_arrival_ns = 0;  // sensor thread until joined
+  std::string source_error;                            // sensor thread until joined
   SpscRing<KeyframeMsg> keyframes(64);
   // ROI refinement: jobs from the frontend to each worker, outcomes back
   // (one ring per direction and worker: single producer, single consumer).
@@ -108,18 +135,26 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   std::atomic<uint64_t> keyframes_pushed{0};
   std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
   std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
-  latency_ms.reserve(frames.size());
-  frontend_ms.reserve(frames.size());
-  stats.results.reserve(frames.size());
+  latency_ms.reserve(source.size());
+  frontend_ms.reserve(source.size());
+  stats.results.reserve(source.size());
 
   std::thread sensor([&] {
     nameThisThread("hx-sensor");
-    for (size_t i = 0; i < frames.size() && !stop.load(); ++i) {
-      std::this_thread::sleep_until(t0 + std::chrono::nanoseconds(due_ns[i]));
-      if (stop.load()) break;
-      arrival_ns[i] = now_ns();
-      sched.frameArrived(arrival_ns[i]);
-      if (sensor_slot.publish(size_t{i})) {
+    for (int64_t i = 0; !stop.load(); ++i) {
+      auto next = source.next(stop);
+      if (!next) {
+        source_error = next.message();
+        spdlog::error("{}", source_error);
+        break;
+      }
+      if (!next->has_value()) break;  // the end of the stream, or stopped
+      Arrival a{std::move(**next), now_ns(), i};
+      if (i == 0) first_arrival_ns = a.arrival_ns;
+      last_arrival_ns = a.arrival_ns;
+      sched.frameArrived(a.arrival_ns);
+      frames_in.fetch_add(1, std::memory_order_relaxed);
+      if (sensor_slot.publish(std::move(a))) {
         sched.framesDropped(1);
         spdlog::debug("frame {} replaced an unprocessed one (dropped)", i);
       }
@@ -137,8 +172,8 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       // Read the publish count before looking: a frame published after the
       // look changes it, so the wait below cannot miss it.
       const uint64_t seen = published.load(std::memory_order_acquire);
-      size_t idx = 0;
-      if (!sensor_slot.take(idx)) {
+      Arrival a;
+      if (!sensor_slot.take(a)) {
         if (sensor_done.load()) break;
         published.wait(seen, std::memory_order_acquire);
         continue;
@@ -148,14 +183,14 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       PoseCorrection correction;
       while (corrections.tryPop(correction)) corrections_applied += frontend.applyPoseCorrection(correction);
       const int64_t start = now_ns();
-      sched.frameStarted(start, arrival_ns[idx]);
-      FrameResult r = frontend.process(frames[idx]);
+      sched.frameStarted(start, a.arrival_ns);
+      FrameResult r = frontend.process(a.frame);
       const int64_t end = now_ns();
       sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
                           static_cast<double>(end - start) * 1e-6);
-      latency_ms.push_back(static_cast<double>(end - arrival_ns[idx]) * 1e-6);
+      latency_ms.push_back(static_cast<double>(end - a.arrival_ns) * 1e-6);
       frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
-      if (trace) traceFrameStages(*trace, r, start, 2, static_cast<int64_t>(idx));
+      if (trace) traceFrameStages(*trace, r, start, 2, a.index);
       if (options.on_frame) {
         const SchedulerCounters c = sched.counters();
         options.on_frame(r, frontend,
@@ -321,9 +356,10 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
     if (options.status_interval_s > 0 && since >= options.status_interval_s) {
       const uint64_t done = frames_done.load();
       const SchedulerCounters c = sched.counters();
+      const std::string of = source.size() > 0 ? fmt::format(" of {}", source.size()) : std::string();
       const std::string line = fmt::format(
-          "realtime: {:5.1f} FPS, {} of {} frames, dropped {}, deadline misses {}, ROI jobs done {}, shed jobs {}",
-          static_cast<double>(done - last_done) / since, done, frames.size(), c.frames_dropped, c.deadline_misses,
+          "realtime: {:5.1f} FPS, {}{} frames, dropped {}, deadline misses {}, ROI jobs done {}, shed jobs {}",
+          static_cast<double>(done - last_done) / since, done, of, c.frames_dropped, c.deadline_misses,
           refine_done.load(), c.jobs_shed_unstarted + c.jobs_cancelled);
       if (tty) {
         std::fprintf(stderr, "\r%s   ", line.c_str());
@@ -351,7 +387,9 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
 
   stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();
   stats.counters = sched.counters();
-  const double played_s = std::max(1e-9, static_cast<double>(due_ns.back()) * 1e-9 + sched.periodNs() * 1e-9);
+  stats.source_error = source_error;
+  const double played_s =
+      std::max(1e-9, static_cast<double>(last_arrival_ns - first_arrival_ns) * 1e-9 + sched.periodNs() * 1e-9);
   stats.fps = static_cast<double>(stats.counters.frames_processed) / std::min(stats.wall_s, played_s);
   stats.latency_p50_ms = percentileOf(latency_ms, 0.5);
   stats.latency_p99_ms = percentileOf(latency_ms, 0.99);
@@ -371,7 +409,7 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
   stats.refine_voxels_written = voxels_written;
   const SchedulerCounters& c = stats.counters;
   stats.report = fmt::format(
-      "realtime playback at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement\n"
+      "realtime run at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement\n"
       "  frames: in {}, processed {}, dropped {}, deadline misses {}\n"
       "  sustained {:.1f} FPS; latency arrival->pose p50 {:.1f} ms, p99 {:.1f} ms; frontend p50 {:.1f} ms, p99 {:.1f} ms\n"
       "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices paused\n"
@@ -391,6 +429,8 @@ RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& fronte
       voxels_written, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
       stats.keyframes_to_feedback, stats.feedback_ring_full, stats.patches_applied,
       stats.corrections_applied);
+  if (const std::string st = source.statsText(); !st.empty()) stats.report += "  source: " + st + "\n";
+  if (!source_error.empty()) stats.report += "  the source failed: " + source_error + "\n";
   return stats;
 }
 

@@ -90,6 +90,9 @@ struct RigConfig {
   bool registered = false;
   double max_sync_gap_s = 0.02;
   double max_depth_m = 0;       ///< 0 = no limit
+  double fps = 30;              ///< frame rate asked of live cameras
+  double reconnect_timeout_s = 5;  ///< V4L2: how long an unplugged camera is reopened
+  double lost_timeout_s = 10;      ///< a stream silent this long ends a camera run (outputs are written)
 };
 
 /// Publishing over Cyclone DDS (runtime/dds): `hxmap run` publishes when

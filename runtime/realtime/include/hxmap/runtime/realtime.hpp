@@ -4,9 +4,14 @@
 // pool runs background jobs in cooperative slices admitted by the scheduler,
 // and a pose-feedback thread consumes keyframes.
 //
+// Frames come from a FrameSource: a recording played at its recorded rate
+// (PlaybackSource) or a live camera (runtime/camera), whose next() blocks
+// until the device delivers.
+//
 // Threads (created once per run, named, joined before return):
-//   hx-sensor     publishes frame indices into a LatestSlot at their due time;
-//                 an unread older frame is replaced and counted as dropped.
+//   hx-sensor     pulls frames from the source and publishes each into a
+//                 LatestSlot; an unread older frame is replaced and counted
+//                 as dropped.
 //   hx-frontend   the only thread touching the Frontend (and so the map).
 //   hx-refine-N   refinement workers: the frontend's ROI jobs (paper 3.3),
 //                 each slice (field setup, a few training iterations, the
@@ -28,9 +33,11 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "hxmap/core/expected.hpp"
 #include "hxmap/core/frame.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/runtime/scheduler.hpp"
@@ -38,9 +45,43 @@
 
 namespace hxmap::rt {
 
+/// Where the sensor thread gets frames. next() is called on hx-sensor only.
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  /// The next frame, returned when it is due (a recording) or delivered (a
+  /// camera); nothing at the end of the stream or once `stop` is set; an
+  /// Error when the source failed for good (the run ends, what was mapped
+  /// is kept).
+  virtual Expected<std::optional<RgbdFrame>> next(const std::atomic<bool>& stop) = 0;
+  /// The frame rate the scheduler plans for.
+  virtual double fps() const = 0;
+  /// Frames the source will deliver, 0 when unknown (a live camera).
+  virtual size_t size() const { return 0; }
+  /// A line on what the source counted (drops, gaps), for the run report.
+  virtual std::string statsText() const { return {}; }
+};
+
+/// Frames already in memory, each released at its recorded stamp (or at
+/// `fps` when > 0) counted from the first call to next().
+class PlaybackSource : public FrameSource {
+ public:
+  PlaybackSource(const std::vector<RgbdFrame>& frames, double fps);
+  Expected<std::optional<RgbdFrame>> next(const std::atomic<bool>& stop) override;
+  double fps() const override { return fps_; }
+  size_t size() const override { return frames_.size(); }
+
+ private:
+  const std::vector<RgbdFrame>& frames_;
+  std::vector<int64_t> due_ns_;
+  double fps_ = 30;
+  size_t next_ = 0;
+  int64_t t0_ns_ = 0;
+};
+
 struct RealtimeOptions {
-  double fps = 0;                  ///< playback rate; 0 = the recorded stamps
-  SchedulerParams scheduler;       ///< target_fps is set from the playback rate when fps > 0
+  double fps = 0;                  ///< playback rate of a frame vector; 0 = the recorded stamps
+  SchedulerParams scheduler;       ///< target_fps is set from the source's rate
   int refine_workers = 1;
   /// Inject a CPU-burning refinement load: jobs of slices of this many ms,
   /// resubmitted as soon as one ends or is shed (0 = none).
@@ -66,6 +107,7 @@ struct RealtimeStats {
   uint64_t refine_jobs_submitted = 0, refine_jobs_rejected = 0, refine_jobs_completed = 0, refine_jobs_shed = 0;
   uint64_t refine_outcomes_dropped = 0, refine_slices = 0, refine_voxels_written = 0;
   bool stopped_early = false;
+  std::string source_error;        ///< why the source ended early (empty: it ran out or was stopped)
   std::string report;              ///< the final table
   std::vector<FrameResult> results;
 };
@@ -74,9 +116,15 @@ struct RealtimeStats {
 /// inside Frontend::process, so they are laid out from its start.
 void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t start_ns, int thread, int64_t frame);
 
-/// Plays `frames` (already loaded; stamps give the recorded rate) through
-/// the threads. `heartbeat` (optional) is called by the calling thread about
-/// every status interval while the run is healthy (service watchdog).
+/// Runs the frames of `source` through the threads until it ends, fails or
+/// `stop` is set. `heartbeat` (optional) is called by the calling thread
+/// about every status interval while the run is healthy (service watchdog).
+RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const RealtimeOptions& options,
+                          const std::atomic<bool>& stop, TraceRecorder* trace = nullptr,
+                          const std::function<void()>& heartbeat = {});
+
+/// Plays `frames` (already loaded; stamps give the recorded rate, or
+/// options.fps) through the threads.
 RealtimeStats runRealtime(const std::vector<RgbdFrame>& frames, Frontend& frontend, const RealtimeOptions& options,
                           const std::atomic<bool>& stop, TraceRecorder* trace = nullptr,
                           const std::function<void()>& heartbeat = {});
