@@ -126,6 +126,35 @@ bool BlockCache::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) {
   return true;
 }
 
+bool BlockCache::sampleWithGradient(const Eigen::Vector3f& p, float min_weight, float& sdf, Eigen::Vector3f& gradient,
+                                    Eigen::Vector3f& rgb) {
+  const VoxelBlock* blocks[8];
+  int index[8];
+  Eigen::Vector3f f;
+  if (!gatherCorners(*this, map_->invVoxelSize(), p, min_weight, blocks, index, f)) return false;
+  float s[8];
+  rgb.setZero();
+  sdf = 0;
+  for (int c = 0; c < 8; ++c) {
+    s[c] = blocks[c]->geo[index[c]].sdf_m;
+    const float w = cornerWeight(c, f);
+    sdf += w * s[c];
+    const VoxelColor& k = blocks[c]->color[index[c]];
+    rgb += w * Eigen::Vector3f(k.r, k.g, k.b);
+  }
+  // Corner c = x | y << 1 | z << 2: differences along each axis, blended
+  // over the other two.
+  const float fx = f.x(), fy = f.y(), fz = f.z();
+  const float dx = (1 - fy) * (1 - fz) * (s[1] - s[0]) + fy * (1 - fz) * (s[3] - s[2]) + (1 - fy) * fz * (s[5] - s[4]) +
+                   fy * fz * (s[7] - s[6]);
+  const float dy = (1 - fx) * (1 - fz) * (s[2] - s[0]) + fx * (1 - fz) * (s[3] - s[1]) + (1 - fx) * fz * (s[6] - s[4]) +
+                   fx * fz * (s[7] - s[5]);
+  const float dz = (1 - fx) * (1 - fy) * (s[4] - s[0]) + fx * (1 - fy) * (s[5] - s[1]) + (1 - fx) * fy * (s[6] - s[2]) +
+                   fx * fy * (s[7] - s[3]);
+  gradient = Eigen::Vector3f(dx, dy, dz) * map_->invVoxelSize();
+  return true;
+}
+
 bool TsdfMap::sample(const Eigen::Vector3f& p, float min_weight, float& sdf) const {
   BlockCache cache(*this);
   return cache.sample(p, min_weight, sdf);

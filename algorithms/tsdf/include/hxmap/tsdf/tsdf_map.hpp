@@ -202,6 +202,11 @@ class BlockCache {
   /// of them is unallocated or has weight < min_weight (or none).
   bool sample(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m);
   bool sampleColor(const Eigen::Vector3f& p_world, Eigen::Vector3f& rgb);
+  /// One gather of the 8 voxels around p: the trilinear SDF, its exact
+  /// gradient (per meter, the trilinear's derivative, not a finite
+  /// difference) and the trilinear color (0..255).
+  bool sampleWithGradient(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m, Eigen::Vector3f& gradient,
+                          Eigen::Vector3f& rgb);
 
  private:
   struct Entry {

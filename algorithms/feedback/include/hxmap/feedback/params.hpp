@@ -1,0 +1,46 @@
+// Parameters of the sliding-window pose feedback (paper 3.4, eq 12-13).
+#pragma once
+
+namespace hxmap::alg {
+
+struct FeedbackParams {
+  bool enabled = true;
+  int window = 8;                 ///< N keyframes whose poses are the variables
+  int image_level = 1;            ///< pyramid level of the keyframe images used (0 = full size)
+  /// Omega_j: a uniform base set, plus per iteration the pixels with the
+  /// largest residuals of the previous iteration and a fresh uniform set
+  /// that lets new large residuals be found.
+  int base_pixels = 1536;
+  int top_pixels = 256;
+  int explore_pixels = 256;
+  int iterations = 4;             ///< Levenberg-Marquardt iterations per solve (accepted or not)
+  /// Per-channel weights (eq 13): explicit (TSDF raycast) and implicit
+  /// (neural fields inside refined ROIs) photometric and depth.
+  double lambda_photo_explicit = 0.5;
+  double lambda_depth_explicit = 1.0;
+  double lambda_photo_implicit = 0.5;
+  double lambda_depth_implicit = 1.0;
+  /// Residual scales (normalize the channels) and robust weights: Huber at
+  /// one scale; residuals beyond the gate are outliers (dropped).
+  double depth_sigma_m = 0.01;
+  double photo_sigma = 0.05;      ///< intensity 0..1
+  double depth_gate_m = 0.05;
+  double photo_gate = 0.3;
+  /// The keyframe's intensity is blurred by this Gaussian sigma (pixels)
+  /// before comparison: the map's colors are averages over a voxel, and a
+  /// sharper image than the map biases the photometric term near edges.
+  double photo_blur_px = 1.0;
+  double min_gradient = 0.02;     ///< photometric pixels need |grad I| (per pixel) above this
+  double max_incidence_deg = 75;  ///< rays more grazing than this to the surface are skipped
+  /// Relative-pose factors between consecutive keyframes carry the ICP
+  /// information times this (the ICP Hessian ignores correlated errors and
+  /// is overconfident by orders of magnitude); 0 = no such factors.
+  double odometry_information_scale = 1e-3;
+  double lm_initial_damping = 1e-4;
+  /// Feedback: keyframes whose pose moved more than this are re-integrated.
+  double reintegrate_translation_m = 0.003;
+  double reintegrate_rotation_deg = 0.2;
+  unsigned seed = 1;              ///< uniform pixel sets (deterministic)
+};
+
+}  // namespace hxmap::alg

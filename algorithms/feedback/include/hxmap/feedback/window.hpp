@@ -1,0 +1,139 @@
+// Sliding-window pose optimization (paper 3.4, eq 12-13) as a small factor
+// graph over the poses of the last N keyframes:
+//   - residual factors per keyframe: explicit photometric and depth against
+//     the TSDF raycast from its pose, implicit photometric and depth against
+//     the neural fields of refined regions (where the ray meets one), on the
+//     pixel set Omega_j, Huber-weighted and scaled by the channel's lambda;
+//   - relative-pose factors between consecutive keyframes: the motion
+//     tracking measured, with information from the ICP Hessian;
+//   - a Gaussian prior on the oldest pose, left by marginalizing the
+//     keyframes that slid out (Schur complement of their factors).
+// Levenberg-Marquardt with analytic Jacobians (residuals.hpp) solves it; the
+// maps are fixed during a solve. Pure: no threads or clocks; the caller
+// bounds the work with params.iterations and a stop callback.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "hxmap/feedback/params.hpp"
+#include "hxmap/feedback/residuals.hpp"
+#include "hxmap/geometry/camera.hpp"
+#include "hxmap/geometry/se3.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::alg {
+
+/// A keyframe as the window needs it.
+struct WindowKeyframe {
+  uint32_t id = 0;
+  int64_t stamp_ns = 0;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();  ///< the estimate (tracking's at first)
+  PinholeCamera camera;   ///< of the images below
+  cv::Mat intensity;      ///< CV_32F 0..1
+  cv::Mat depth;          ///< CV_32F meters, 0 = none
+  /// Tracking's relative motion from the previous keyframe (T_prev^-1 T_this
+  /// as tracked) and its information in this keyframe's camera frame
+  /// (right-perturbation coordinates); zero information = no factor.
+  Eigen::Isometry3d odometry_from_previous = Eigen::Isometry3d::Identity();
+  Matrix6d odometry_information = Matrix6d::Zero();
+};
+
+/// The maps the residuals are taken against; both fixed during a solve.
+struct FeedbackMaps {
+  const TsdfMap* tsdf = nullptr;
+  std::vector<const ImplicitSurface*> implicit;
+};
+
+/// Residual counts and robust costs per channel, summed over the window.
+struct ChannelStats {
+  int photo_explicit = 0, depth_explicit = 0, photo_implicit = 0, depth_implicit = 0;
+  double cost = 0;  ///< the whole objective (residual factors, relative factors, prior)
+};
+
+struct SolveReport {
+  int iterations = 0, accepted = 0;
+  int evaluations = 0;      ///< residual evaluations (pixel set x keyframes)
+  ChannelStats before, after;
+  bool stopped = false;     ///< the stop callback ended it early
+  std::vector<Eigen::Isometry3d> poses_before;  ///< window order
+  std::string failure;      ///< empty when the solve ran
+};
+
+class PoseWindow {
+ public:
+  explicit PoseWindow(const FeedbackParams& params);
+
+  /// Appends a keyframe (its pose from tracking). When the window is full,
+  /// the oldest keyframe is marginalized first: its factors, linearized at
+  /// the current estimates against `maps`, become a prior on the next one.
+  void add(WindowKeyframe keyframe, const FeedbackMaps& maps);
+
+  /// Levenberg-Marquardt over the window's poses. `stop` (optional) is
+  /// checked between iterations.
+  SolveReport solve(const FeedbackMaps& maps, const std::function<bool()>& stop = {});
+
+  const std::vector<WindowKeyframe>& keyframes() const { return keyframes_; }
+  size_t size() const { return keyframes_.size(); }
+  bool hasPrior() const { return has_prior_; }
+  /// The prior on the oldest pose: information and gradient at prior_T_lin.
+  const Matrix6d& priorInformation() const { return prior_H_; }
+  const Vector6d& priorGradient() const { return prior_b_; }
+  /// The uniform base pixel set of keyframe j (image coordinates).
+  const std::vector<Eigen::Vector2i>& basePixels(size_t j) const { return slots_[j].base; }
+  const FeedbackParams& params() const { return params_; }
+
+  /// One keyframe's residual factor at pose T on `pixels` (u, v at the
+  /// image level): 0.5 sum w r^2, and the Gauss-Newton H and b (d cost /
+  /// d xi = b). Exposed for tests and the marginalization.
+  struct PixelResult {
+    float residual = 0;  ///< largest weighted |r| over the channels (for Omega's top set)
+    float hint_z = 0;    ///< the explicit hit depth, the next evaluation's hint
+  };
+  struct Linearization {
+    Matrix6d H = Matrix6d::Zero();
+    Vector6d b = Vector6d::Zero();
+    double cost = 0;
+    ChannelStats counts;
+  };
+  Linearization linearize(const WindowKeyframe& kf, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+                          const std::vector<Eigen::Vector2i>& pixels, std::vector<PixelResult>* out = nullptr) const;
+
+ private:
+  struct Slot {
+    std::vector<Eigen::Vector2i> base;   ///< uniform over pixels with depth
+    std::vector<Eigen::Vector2i> extra;  ///< top + explore of this iteration
+    cv::Mat intensity;                   ///< blurred to the map's color resolution
+    cv::Mat grad_x, grad_y;              ///< its gradient per pixel
+  };
+  void prepare(Slot& slot, const WindowKeyframe& kf) const;
+  /// A relative factor joins keyframe k to k-1.
+  bool linked(size_t k) const {
+    return params_.odometry_information_scale > 0 && !keyframes_[k].odometry_information.isZero(0);
+  }
+  void marginalizeOldest(const FeedbackMaps& maps);
+  /// Relative factor between keyframes a and a+1 at poses Ta, Tb: cost,
+  /// and its 12x12 H and b over (xi_a, xi_b).
+  double relativeFactor(size_t a, const Eigen::Isometry3d& Ta, const Eigen::Isometry3d& Tb,
+                        Eigen::Matrix<double, 12, 12>* H, Eigen::Matrix<double, 12, 1>* b) const;
+  double priorCost(const Eigen::Isometry3d& T, Matrix6d* H, Vector6d* b) const;
+
+  FeedbackParams params_;
+  std::vector<WindowKeyframe> keyframes_;
+  std::vector<Slot> slots_;
+  // Prior on keyframes_[0] from marginalization: cost(delta) =
+  // 0.5 delta^T H delta + b^T delta, delta = log(T_lin^-1 T).
+  bool has_prior_ = false;
+  Eigen::Isometry3d prior_T_lin_ = Eigen::Isometry3d::Identity();
+  Matrix6d prior_H_ = Matrix6d::Zero();
+  Vector6d prior_b_ = Vector6d::Zero();
+  uint64_t rng_state_;
+};
+
+}  // namespace hxmap::alg

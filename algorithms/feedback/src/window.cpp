@@ -1,0 +1,381 @@
+#include "hxmap/feedback/window.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Cholesky>
+
+namespace hxmap::alg {
+
+namespace {
+
+// Huber with threshold 1 on a normalized residual: cost and IRLS weight.
+inline double huberCost(double x) {
+  const double a = std::abs(x);
+  return a <= 1.0 ? 0.5 * x * x : a - 0.5;
+}
+inline double huberWeight(double x) {
+  const double a = std::abs(x);
+  return a <= 1.0 ? 1.0 : 1.0 / a;
+}
+
+uint64_t nextRandom(uint64_t& s) {  // xorshift64*
+  s ^= s >> 12;
+  s ^= s << 25;
+  s ^= s >> 27;
+  return s * 2685821657736338717ull;
+}
+
+// One normalized residual into H, b and the cost.
+void accumulate(double r, double sigma, double lambda, const Vector6d& J, Matrix6d& H, Vector6d& b, double& cost) {
+  const double x = r / sigma;
+  const double w = lambda * huberWeight(x) / (sigma * sigma);
+  H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
+  b += w * r * J;
+  cost += lambda * huberCost(x);
+}
+
+}  // namespace
+
+PoseWindow::PoseWindow(const FeedbackParams& params)
+    : params_(params), rng_state_(0x9E3779B97F4A7C15ull ^ (static_cast<uint64_t>(params.seed) + 1)) {}
+
+void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
+  cv::Mat I = kf.intensity;
+  if (params_.photo_blur_px > 0) cv::GaussianBlur(kf.intensity, I, cv::Size(0, 0), params_.photo_blur_px);
+  slot.intensity = I;
+  slot.grad_x = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
+  slot.grad_y = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
+  std::vector<Eigen::Vector2i> valid;
+  for (int v = 1; v + 1 < I.rows; ++v) {
+    const float* row = I.ptr<float>(v);
+    const float* up = I.ptr<float>(v - 1);
+    const float* down = I.ptr<float>(v + 1);
+    const float* d = kf.depth.ptr<float>(v);
+    float* gx = slot.grad_x.ptr<float>(v);
+    float* gy = slot.grad_y.ptr<float>(v);
+    for (int u = 1; u + 1 < I.cols; ++u) {
+      gx[u] = 0.5f * (row[u + 1] - row[u - 1]);
+      gy[u] = 0.5f * (down[u] - up[u]);
+      if (d[u] > 0 && std::isfinite(d[u])) valid.emplace_back(u, v);
+    }
+  }
+  // Uniform base: systematic sampling of the pixels with depth.
+  slot.base.clear();
+  const size_t want = static_cast<size_t>(std::max(0, params_.base_pixels));
+  if (valid.size() <= want) {
+    slot.base = valid;
+  } else {
+    const double step = static_cast<double>(valid.size()) / static_cast<double>(want);
+    for (size_t k = 0; k < want; ++k) slot.base.push_back(valid[static_cast<size_t>((static_cast<double>(k) + 0.5) * step)]);
+  }
+  slot.extra.clear();
+}
+
+PoseWindow::Linearization PoseWindow::linearize(const WindowKeyframe& kf, const Eigen::Isometry3d& T,
+                                                const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels,
+                                                std::vector<PixelResult>* out) const {
+  Linearization L;
+  if (out) out->assign(pixels.size(), PixelResult{});
+  if (!maps.tsdf || kf.intensity.empty()) return L;
+  BlockCache cache(*maps.tsdf);
+  const PinholeCamera& cam = kf.camera;
+  const FeedbackParams& p = params_;
+  // The gradient images belong to the slot; a keyframe outside the window
+  // (tests) gets them computed here.
+  cv::Mat gx_img, gy_img, i_img;
+  for (size_t s = 0; s < keyframes_.size(); ++s) {
+    if (keyframes_[s].id == kf.id && keyframes_[s].stamp_ns == kf.stamp_ns) {
+      gx_img = slots_[s].grad_x;
+      gy_img = slots_[s].grad_y;
+      i_img = slots_[s].intensity;
+    }
+  }
+  if (gx_img.empty()) {
+    Slot tmp;
+    prepare(tmp, kf);
+    gx_img = tmp.grad_x;
+    gy_img = tmp.grad_y;
+    i_img = tmp.intensity;
+  }
+  Vector6d J;
+  for (size_t i = 0; i < pixels.size(); ++i) {
+    const int u = pixels[i].x(), v = pixels[i].y();
+    const double D = kf.depth.at<float>(v, u);
+    if (!(D > 0)) continue;
+    const double I = i_img.at<float>(v, u);
+    const double gx = gx_img.at<float>(v, u), gy = gy_img.at<float>(v, u);
+    const bool textured = std::hypot(gx, gy) >= p.min_gradient;
+    float worst = 0;
+    // The channels at one hit: depth, and photometric where textured.
+    auto channel = [&](const SurfaceHit& hit, double lambda_photo, double lambda_depth, int& n_photo, int& n_depth) {
+      if (lambda_depth > 0) {
+        const double r = depthResidual(cam, T, u, v, D, hit, J);
+        if (std::abs(r) <= p.depth_gate_m) {
+          accumulate(r, p.depth_sigma_m, lambda_depth, J, L.H, L.b, L.cost);
+          ++n_depth;
+          worst = std::max(worst, static_cast<float>(std::sqrt(lambda_depth) * std::abs(r) / p.depth_sigma_m));
+        }
+      }
+      if (lambda_photo > 0 && textured) {
+        const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
+        if (std::abs(r) <= p.photo_gate) {
+          accumulate(r, p.photo_sigma, lambda_photo, J, L.H, L.b, L.cost);
+          ++n_photo;
+          worst = std::max(worst, static_cast<float>(std::sqrt(lambda_photo) * std::abs(r) / p.photo_sigma));
+        }
+      }
+    };
+    SurfaceHit hit;
+    if (castExplicit(cache, *maps.tsdf, cam, T, u, v, D, p.max_incidence_deg, hit)) {
+      channel(hit, p.lambda_photo_explicit, p.lambda_depth_explicit, L.counts.photo_explicit, L.counts.depth_explicit);
+      if (out) (*out)[i].hint_z = static_cast<float>(hit.z);
+      // Implicit channels where the ray meets a refined region's field.
+      for (const ImplicitSurface* surface : maps.implicit) {
+        if (!surface || !surface->box().contains(hit.point_world.cast<float>())) continue;
+        SurfaceHit ih;
+        if (castImplicit(*surface, cam, T, u, v, hit.z, p.max_incidence_deg, ih)) {
+          channel(ih, p.lambda_photo_implicit, p.lambda_depth_implicit, L.counts.photo_implicit,
+                  L.counts.depth_implicit);
+        }
+        break;  // one field per ray
+      }
+    }
+    if (out) (*out)[i].residual = worst;
+  }
+  L.H = L.H.selfadjointView<Eigen::Upper>();
+  L.counts.cost = L.cost;
+  return L;
+}
+
+double PoseWindow::relativeFactor(size_t a, const Eigen::Isometry3d& Ta, const Eigen::Isometry3d& Tb,
+                                  Eigen::Matrix<double, 12, 12>* H, Eigen::Matrix<double, 12, 1>* b) const {
+  const WindowKeyframe& kb = keyframes_[a + 1];
+  if (!linked(a + 1)) return 0.0;
+  const Matrix6d info = params_.odometry_information_scale * kb.odometry_information;
+  Matrix6d Ja, Jb;
+  const Vector6d e = relativePoseResidual(kb.odometry_from_previous, Ta, Tb, &Ja, &Jb);
+  if (H && b) {
+    Eigen::Matrix<double, 6, 12> J;
+    J.leftCols<6>() = Ja;
+    J.rightCols<6>() = Jb;
+    *H = J.transpose() * info * J;
+    *b = J.transpose() * info * e;
+  }
+  return 0.5 * e.dot(info * e);
+}
+
+double PoseWindow::priorCost(const Eigen::Isometry3d& T, Matrix6d* H, Vector6d* b) const {
+  if (!has_prior_) return 0.0;
+  const Vector6d d = logSE3(prior_T_lin_.inverse() * T);
+  if (H && b) {
+    *H = prior_H_;
+    *b = prior_H_ * d + prior_b_;
+  }
+  return 0.5 * d.dot(prior_H_ * d) + prior_b_.dot(d);
+}
+
+void PoseWindow::add(WindowKeyframe keyframe, const FeedbackMaps& maps) {
+  while (params_.window > 0 && keyframes_.size() >= static_cast<size_t>(params_.window)) marginalizeOldest(maps);
+  Slot slot;
+  prepare(slot, keyframe);
+  keyframes_.push_back(std::move(keyframe));
+  slots_.push_back(std::move(slot));
+}
+
+void PoseWindow::marginalizeOldest(const FeedbackMaps& maps) {
+  if (keyframes_.empty()) return;
+  if (keyframes_.size() >= 2) {
+    // The oldest pose's factors at the current estimates: its residual
+    // factor, its prior and the relative factor to the next keyframe.
+    Eigen::Matrix<double, 12, 12> H = Eigen::Matrix<double, 12, 12>::Zero();
+    Eigen::Matrix<double, 12, 1> b = Eigen::Matrix<double, 12, 1>::Zero();
+    const Linearization lo = linearize(keyframes_[0], keyframes_[0].T_world_cam, maps, slots_[0].base);
+    H.topLeftCorner<6, 6>() += lo.H;
+    b.head<6>() += lo.b;
+    if (has_prior_) {
+      Matrix6d Hp;
+      Vector6d bp;
+      priorCost(keyframes_[0].T_world_cam, &Hp, &bp);
+      H.topLeftCorner<6, 6>() += Hp;
+      b.head<6>() += bp;
+    }
+    if (linked(1)) {
+      Eigen::Matrix<double, 12, 12> Hr;
+      Eigen::Matrix<double, 12, 1> br;
+      relativeFactor(0, keyframes_[0].T_world_cam, keyframes_[1].T_world_cam, &Hr, &br);
+      H += Hr;
+      b += br;
+      // Schur complement: the oldest pose eliminated.
+      const Matrix6d H00 = H.topLeftCorner<6, 6>() + 1e-9 * Matrix6d::Identity();
+      const Eigen::LDLT<Matrix6d> ldlt(H00);
+      const Matrix6d H10 = H.bottomLeftCorner<6, 6>();
+      prior_H_ = H.bottomRightCorner<6, 6>() - H10 * ldlt.solve(H10.transpose());
+      prior_H_ = 0.5 * (prior_H_ + prior_H_.transpose());
+      prior_b_ = b.tail<6>() - H10 * ldlt.solve(b.head<6>());
+      prior_T_lin_ = keyframes_[1].T_world_cam;
+      has_prior_ = true;
+    } else {
+      has_prior_ = false;  // nothing ties the next pose to the one leaving
+    }
+  } else {
+    has_prior_ = false;
+  }
+  keyframes_.erase(keyframes_.begin());
+  slots_.erase(slots_.begin());
+}
+
+SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool()>& stop) {
+  SolveReport rep;
+  const size_t n = keyframes_.size();
+  for (const auto& kf : keyframes_) rep.poses_before.push_back(kf.T_world_cam);
+  if (n == 0 || !maps.tsdf) {
+    rep.failure = n == 0 ? "empty window" : "no map";
+    return rep;
+  }
+  const FeedbackParams& p = params_;
+  const int dim = static_cast<int>(6 * n);
+
+  // Fresh extra pixels: the previous top set plus a uniform explore set.
+  auto explore = [&](size_t j, std::vector<Eigen::Vector2i>& extra) {
+    const WindowKeyframe& kf = keyframes_[j];
+    int tries = 0;
+    const int want = static_cast<int>(extra.size()) + p.explore_pixels;
+    while (static_cast<int>(extra.size()) < want && tries++ < 8 * std::max(1, p.explore_pixels)) {
+      const int u = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, kf.depth.cols - 2)));
+      const int v = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, kf.depth.rows - 2)));
+      if (kf.depth.at<float>(v, u) > 0) extra.emplace_back(u, v);
+    }
+  };
+  for (size_t j = 0; j < n; ++j) {
+    slots_[j].extra.clear();
+    explore(j, slots_[j].extra);
+  }
+
+  struct KfEval {
+    Linearization base, extra;
+    std::vector<PixelResult> extra_pixels;
+  };
+  auto evalBase = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
+    e.base = linearize(keyframes_[j], T, maps, slots_[j].base);
+    ++rep.evaluations;
+  };
+  auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
+    e.extra = linearize(keyframes_[j], T, maps, slots_[j].extra, &e.extra_pixels);
+  };
+  // The whole objective and its normal equations at poses x.
+  auto assemble = [&](const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
+                      Eigen::VectorXd* b, ChannelStats& stats) {
+    stats = ChannelStats{};
+    double cost = 0;
+    if (H) {
+      H->setZero(dim, dim);
+      b->setZero(dim);
+    }
+    for (size_t j = 0; j < n; ++j) {
+      for (const Linearization* L : {&ev[j].base, &ev[j].extra}) {
+        cost += L->cost;
+        stats.photo_explicit += L->counts.photo_explicit;
+        stats.depth_explicit += L->counts.depth_explicit;
+        stats.photo_implicit += L->counts.photo_implicit;
+        stats.depth_implicit += L->counts.depth_implicit;
+        if (H) {
+          H->block<6, 6>(static_cast<int>(6 * j), static_cast<int>(6 * j)) += L->H;
+          b->segment<6>(static_cast<int>(6 * j)) += L->b;
+        }
+      }
+    }
+    for (size_t j = 0; j + 1 < n; ++j) {
+      Eigen::Matrix<double, 12, 12> Hr;
+      Eigen::Matrix<double, 12, 1> br;
+      const double c = relativeFactor(j, x[j], x[j + 1], H ? &Hr : nullptr, H ? &br : nullptr);
+      cost += c;
+      if (H && linked(j + 1)) {
+        const int o = static_cast<int>(6 * j);
+        H->block<12, 12>(o, o) += Hr;
+        b->segment<12>(o) += br;
+      }
+    }
+    Matrix6d Hp;
+    Vector6d bp;
+    cost += priorCost(x[0], H ? &Hp : nullptr, H ? &bp : nullptr);
+    if (H && has_prior_) {
+      H->block<6, 6>(0, 0) += Hp;
+      b->segment<6>(0) += bp;
+    }
+    stats.cost = cost;
+    return cost;
+  };
+
+  std::vector<Eigen::Isometry3d> x(n);
+  for (size_t j = 0; j < n; ++j) x[j] = keyframes_[j].T_world_cam;
+  std::vector<KfEval> ev(n);
+  for (size_t j = 0; j < n; ++j) {
+    evalBase(j, x[j], ev[j]);
+    evalExtra(j, x[j], ev[j]);
+  }
+  Eigen::MatrixXd H;
+  Eigen::VectorXd b;
+  double cost = assemble(x, ev, &H, &b, rep.before);
+  double mu = p.lm_initial_damping;
+  for (int it = 0; it < p.iterations; ++it) {
+    if (stop && stop()) {
+      rep.stopped = true;
+      break;
+    }
+    ++rep.iterations;
+    Eigen::MatrixXd A = H;
+    for (int k = 0; k < dim; ++k) A(k, k) += mu * std::max(H(k, k), 1e-6) + 1e-9;
+    const Eigen::VectorXd delta = A.ldlt().solve(-b);
+    if (!delta.allFinite()) break;
+    std::vector<Eigen::Isometry3d> x_try(n);
+    for (size_t j = 0; j < n; ++j) x_try[j] = x[j] * expSE3(delta.segment<6>(static_cast<int>(6 * j)));
+    std::vector<KfEval> ev_try(n);
+    for (size_t j = 0; j < n; ++j) {
+      evalBase(j, x_try[j], ev_try[j]);
+      evalExtra(j, x_try[j], ev_try[j]);
+    }
+    ChannelStats st;
+    const double cost_try = assemble(x_try, ev_try, nullptr, nullptr, st);
+    if (cost_try < cost) {
+      ++rep.accepted;
+      x = x_try;
+      ev = std::move(ev_try);
+      mu = std::max(mu / 3.0, 1e-9);
+      // Omega for the next iteration: the base, the largest residuals of
+      // this one (among the extras: the base is there already), a fresh
+      // explore set; the new extras evaluated at the accepted poses.
+      for (size_t j = 0; j < n; ++j) {
+        Slot& s = slots_[j];
+        std::vector<size_t> order(s.extra.size());
+        for (size_t k = 0; k < order.size(); ++k) order[k] = k;
+        const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, p.top_pixels)));
+        std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
+                          [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
+        std::vector<Eigen::Vector2i> next;
+        for (size_t k = 0; k < keep; ++k) {
+          if (ev[j].extra_pixels[order[k]].residual > 0) next.push_back(s.extra[order[k]]);
+        }
+        s.extra = std::move(next);
+        explore(j, s.extra);
+        evalExtra(j, x[j], ev[j]);
+      }
+      cost = assemble(x, ev, &H, &b, st);
+      if (delta.lpNorm<Eigen::Infinity>() < 1e-7) break;  // converged
+    } else {
+      mu *= 4.0;
+    }
+  }
+  for (size_t j = 0; j < n; ++j) keyframes_[j].T_world_cam = x[j];
+  ChannelStats after;
+  std::vector<KfEval> final_ev(n);
+  for (size_t j = 0; j < n; ++j) {
+    final_ev[j].base = ev[j].base;
+    final_ev[j].extra = ev[j].extra;
+  }
+  assemble(x, final_ev, nullptr, nullptr, after);
+  rep.after = after;
+  return rep;
+}
+
+}  // namespace hxmap::alg
