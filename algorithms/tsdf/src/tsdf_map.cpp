@@ -131,7 +131,23 @@ bool BlockCache::sampleWithGradient(const Eigen::Vector3f& p, float min_weight, 
   const VoxelBlock* blocks[8];
   int index[8];
   Eigen::Vector3f f;
-  if (!gatherCorners(*this, map_->invVoxelSize(), p, min_weight, blocks, index, f)) return false;
+  // Fast path as in sample(): the 8 corners in one block, no per-corner lookup.
+  const Eigen::Vector3f q = p * map_->invVoxelSize() - Eigen::Vector3f::Constant(0.5f);
+  const int bx = floorToInt(q.x()), by = floorToInt(q.y()), bz = floorToInt(q.z());
+  if ((bx & 7) < 7 && (by & 7) < 7 && (bz & 7) < 7) {
+    const VoxelBlock* blk = get(BlockKey(bx >> 3, by >> 3, bz >> 3));
+    if (blk == nullptr) return false;
+    const int i0 = VoxelBlock::index(bx & 7, by & 7, bz & 7);
+    for (int c = 0; c < 8; ++c) {
+      blocks[c] = blk;
+      index[c] = i0 + (c & 1) + ((c >> 1) & 1) * kBlockSide + ((c >> 2) & 1) * kBlockSide * kBlockSide;
+      const float w = blk->geo[index[c]].weight;
+      if (w < min_weight || w <= 0) return false;
+    }
+    f = q - Eigen::Vector3f(static_cast<float>(bx), static_cast<float>(by), static_cast<float>(bz));
+  } else if (!gatherCorners(*this, map_->invVoxelSize(), p, min_weight, blocks, index, f)) {
+    return false;
+  }
   float s[8];
   rgb.setZero();
   sdf = 0;

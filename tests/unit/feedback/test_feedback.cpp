@@ -260,7 +260,7 @@ TEST_F(FeedbackTest, SolveRecoversPerturbedKeyframePoses) {
   EXPECT_GT(rep.accepted, 0);
   EXPECT_LT(rep.after.cost, 0.2 * rep.before.cost);
   EXPECT_GT(rep.after.depth_explicit, 4 * 1000);
-  EXPECT_GT(rep.after.photo_explicit, 4 * 300);
+  EXPECT_GT(rep.after.photo_explicit, 4 * 250);
   EXPECT_EQ(rep.after.depth_implicit, 0);
   for (size_t k = 0; k < ids.size(); ++k) {
     const Eigen::Isometry3d err = truth[k].inverse() * window.keyframes()[k].T_world_cam;

@@ -1,0 +1,136 @@
+// Pose feedback: solve time per window and what the solve recovers, on the
+// synthetic room (a map fused from exact poses at 640x480, 2 cm voxels).
+// The window holds N keyframes at the image level the runtime uses (level
+// 1: 320x240) with about 2k pixels each (base + top + explore), poses
+// perturbed as tracking drift would leave them. One core (no parallel-for).
+//
+// Usage: bench_feedback [window N] [repetitions]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <vector>
+
+#include "hxmap/dataset/synthetic.hpp"
+#include "hxmap/feedback/window.hpp"
+#include "hxmap/tsdf/integrate.hpp"
+
+using namespace hxmap;
+using namespace hxmap::alg;
+
+namespace {
+
+cv::Mat intensityOf(const cv::Mat& rgb) {
+  cv::Mat out(rgb.size(), CV_32F);
+  for (int v = 0; v < rgb.rows; ++v) {
+    for (int u = 0; u < rgb.cols; ++u) {
+      const cv::Vec3b c = rgb.at<cv::Vec3b>(v, u);
+      out.at<float>(v, u) = static_cast<float>(c[0] + c[1] + c[2]) / (3.0f * 255.0f);
+    }
+  }
+  return out;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0 : v[v.size() / 2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int n = argc > 1 ? std::atoi(argv[1]) : 8;
+  const int reps = argc > 2 ? std::atoi(argv[2]) : 9;
+  const auto scene = drv::SyntheticScene::room();
+  drv::SyntheticParams sp;
+  sp.frames = 8 * n + 8;
+  sp.noise = true;
+  const Trajectory traj = drv::syntheticTrajectory(sp);
+  TsdfParams tp;
+  TsdfMap map(tp);
+  for (size_t i = 0; i < traj.size(); i += 2) {
+    const auto r = drv::renderFrame(scene, sp.camera, traj[i].T_world_cam, sp, static_cast<int>(i));
+    DepthObservation obs;
+    obs.depth_m = r.depth;
+    obs.rgb = r.rgb;
+    obs.camera = sp.camera;
+    obs.T_world_cam = traj[i].T_world_cam.cast<float>();
+    integrate(map, obs);
+  }
+  const PinholeCamera level1 = sp.camera.level(1);
+  std::vector<WindowKeyframe> kfs;
+  for (int k = 0; k < n; ++k) {
+    const size_t i = static_cast<size_t>(4 + 8 * k);
+    const auto r = drv::renderFrame(scene, level1, traj[i].T_world_cam, sp, static_cast<int>(i));
+    WindowKeyframe kf;
+    kf.id = static_cast<uint32_t>(k);
+    kf.stamp_ns = static_cast<int64_t>(i) * 33'333'333;
+    kf.camera = level1;
+    kf.depth = r.depth;
+    kf.intensity = intensityOf(r.rgb);
+    // Drift: an error growing along the window, about 1 cm and 0.5 deg at its end.
+    const double a = static_cast<double>(k + 1) / n;
+    Vector6d xi;
+    xi << 0.004 * a, -0.006 * a, 0.005 * a, 0.008 * a, -0.004 * a, 0.005 * a;
+    kf.T_world_cam = traj[i].T_world_cam * expSE3(xi);
+    if (k > 0) {
+      // Tracking's relative motion (with the same drift) and an ICP-like information.
+      kf.odometry_from_previous = kfs.back().T_world_cam.inverse() * kf.T_world_cam;
+      kf.odometry_information = Matrix6d::Identity() * 2e4;
+      kf.odometry_information.topLeftCorner<3, 3>() *= 4.0;
+    }
+    kfs.push_back(kf);
+  }
+  FeedbackParams p;
+  p.window = n;
+  std::vector<double> ms, per_iter;
+  SolveReport last;
+  std::vector<WindowKeyframe> solved;
+  for (int r = 0; r < reps; ++r) {
+    PoseWindow window(p);
+    for (const auto& kf : kfs) window.add(kf, {&map, {}});
+    const auto t0 = std::chrono::steady_clock::now();
+    last = window.solve({&map, {}});
+    const double t = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    ms.push_back(t);
+    per_iter.push_back(t / std::max(1, last.iterations));
+    solved = window.keyframes();
+  }
+  {
+    PoseWindow window(p);
+    for (const auto& kf : kfs) window.add(kf, {&map, {}});
+    const auto t0 = std::chrono::steady_clock::now();
+    int px = 0;
+    for (int r = 0; r < 20; ++r) {
+      for (size_t j = 0; j < window.size(); ++j) {
+        px += static_cast<int>(window.basePixels(j).size());
+        (void)window.linearize(window.keyframes()[j], window.keyframes()[j].T_world_cam, {&map, {}}, window.basePixels(j));
+      }
+    }
+    const double t = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    std::printf("  one keyframe's residual factor (raycast, channels, Jacobians): %.3f us per pixel\n", 1000 * t / px);
+  }
+  double before_t = 0, after_t = 0, before_r = 0, after_r = 0;
+  for (int k = 0; k < n; ++k) {
+    const size_t i = static_cast<size_t>(4 + 8 * k);
+    const Eigen::Isometry3d eb = traj[i].T_world_cam.inverse() * kfs[static_cast<size_t>(k)].T_world_cam;
+    const Eigen::Isometry3d ea = traj[i].T_world_cam.inverse() * solved[static_cast<size_t>(k)].T_world_cam;
+    before_t += translationNorm(eb) / n;
+    after_t += translationNorm(ea) / n;
+    before_r += rotationAngle(eb) * 180 / M_PI / n;
+    after_r += rotationAngle(ea) * 180 / M_PI / n;
+  }
+  const int pixels = last.before.depth_explicit / n;
+  std::printf("pose feedback window: N = %d keyframes at %dx%d, about %d depth residuals per keyframe "
+              "(base %d + top %d + explore %d pixels), %d iterations (%d accepted), one core\n",
+              n, level1.width, level1.height, pixels, p.base_pixels, p.top_pixels, p.explore_pixels, last.iterations,
+              last.accepted);
+  std::printf("  solve time: median %.2f ms (min %.2f, max %.2f over %d runs); per iteration %.2f ms\n", median(ms),
+              *std::min_element(ms.begin(), ms.end()), *std::max_element(ms.begin(), ms.end()), reps,
+              median(per_iter));
+  std::printf("  residuals at the end: photometric %d, depth %d (explicit)\n", last.after.photo_explicit,
+              last.after.depth_explicit);
+  std::printf("  keyframe pose error (mean): %.2f mm, %.3f deg before -> %.2f mm, %.3f deg after\n", 1000 * before_t,
+              before_r, 1000 * after_t, after_r);
+  return 0;
+}
