@@ -96,7 +96,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     int64_t index = 0;
   };
   LatestSlot<Arrival> sensor_slot;
-  std::atomic<uint64_t> published{0}, frames_in{0};
+  std::atomic<uint64_t> published{0};
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
   int64_t first_arrival_ns = 0, last_arrival_ns = 0;  // sensor thread until joined
   std::string source_error;                            // sensor thread until joined
@@ -153,7 +153,6 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       if (i == 0) first_arrival_ns = a.arrival_ns;
       last_arrival_ns = a.arrival_ns;
       sched.frameArrived(a.arrival_ns);
-      frames_in.fetch_add(1, std::memory_order_relaxed);
       if (sensor_slot.publish(std::move(a))) {
         sched.framesDropped(1);
         spdlog::debug("frame {} replaced an unprocessed one (dropped)", i);
