@@ -14,22 +14,12 @@
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/feedback/window.hpp"
 #include "hxmap/tsdf/integrate.hpp"
+#include "synthetic_fixture.hpp"
 
 using namespace hxmap;
 using namespace hxmap::alg;
 
 namespace {
-
-cv::Mat intensityOf(const cv::Mat& rgb) {
-  cv::Mat out(rgb.size(), CV_32F);
-  for (int v = 0; v < rgb.rows; ++v) {
-    for (int u = 0; u < rgb.cols; ++u) {
-      const cv::Vec3b c = rgb.at<cv::Vec3b>(v, u);
-      out.at<float>(v, u) = static_cast<float>(c[0] + c[1] + c[2]) / (3.0f * 255.0f);
-    }
-  }
-  return out;
-}
 
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
@@ -67,7 +57,7 @@ int main(int argc, char** argv) {
     kf.stamp_ns = static_cast<int64_t>(i) * 33'333'333;
     kf.camera = level1;
     kf.depth = r.depth;
-    kf.intensity = intensityOf(r.rgb);
+    kf.intensity = test::intensityOf(r.rgb);
     // Drift: an error growing along the window, about 1 cm and 0.5 deg at its end.
     const double a = static_cast<double>(k + 1) / n;
     Vector6d xi;
@@ -104,7 +94,7 @@ int main(int argc, char** argv) {
     for (int r = 0; r < 20; ++r) {
       for (size_t j = 0; j < window.size(); ++j) {
         px += static_cast<int>(window.basePixels(j).size());
-        (void)window.linearize(window.keyframes()[j], window.keyframes()[j].T_world_cam, {&map, {}}, window.basePixels(j));
+        (void)window.linearize(j, window.keyframes()[j].T_world_cam, {&map, {}}, window.basePixels(j));
       }
     }
     const double t = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

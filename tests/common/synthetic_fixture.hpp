@@ -20,4 +20,16 @@ inline RgbdFrame syntheticFrame(const drv::SyntheticScene& scene, const alg::Pin
   return f;
 }
 
+/// RGB (CV_8UC3) to intensity in [0, 1] as the mean of the channels (CV_32F).
+inline cv::Mat intensityOf(const cv::Mat& rgb) {
+  cv::Mat out(rgb.size(), CV_32F);
+  for (int v = 0; v < rgb.rows; ++v) {
+    for (int u = 0; u < rgb.cols; ++u) {
+      const cv::Vec3b c = rgb.at<cv::Vec3b>(v, u);
+      out.at<float>(v, u) = static_cast<float>(c[0] + c[1] + c[2]) / (3.0f * 255.0f);
+    }
+  }
+  return out;
+}
+
 }  // namespace hxmap::test

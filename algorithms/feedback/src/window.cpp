@@ -72,32 +72,19 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
   slot.extra.clear();
 }
 
-PoseWindow::Linearization PoseWindow::linearize(const WindowKeyframe& kf, const Eigen::Isometry3d& T,
-                                                const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels,
+PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+                                                const std::vector<Eigen::Vector2i>& pixels,
                                                 std::vector<PixelResult>* out) const {
   Linearization L;
   if (out) out->assign(pixels.size(), PixelResult{});
+  const WindowKeyframe& kf = keyframes_[j];
   if (!maps.tsdf || kf.intensity.empty()) return L;
   BlockCache cache(*maps.tsdf);
   const PinholeCamera& cam = kf.camera;
   const FeedbackParams& p = params_;
-  // The gradient images belong to the slot; a keyframe outside the window
-  // (tests) gets them computed here.
-  cv::Mat gx_img, gy_img, i_img;
-  for (size_t s = 0; s < keyframes_.size(); ++s) {
-    if (keyframes_[s].id == kf.id && keyframes_[s].stamp_ns == kf.stamp_ns) {
-      gx_img = slots_[s].grad_x;
-      gy_img = slots_[s].grad_y;
-      i_img = slots_[s].intensity;
-    }
-  }
-  if (gx_img.empty()) {
-    Slot tmp;
-    prepare(tmp, kf);
-    gx_img = tmp.grad_x;
-    gy_img = tmp.grad_y;
-    i_img = tmp.intensity;
-  }
+  const cv::Mat& i_img = slots_[j].intensity;
+  const cv::Mat& gx_img = slots_[j].grad_x;
+  const cv::Mat& gy_img = slots_[j].grad_y;
   Vector6d J;
   for (size_t i = 0; i < pixels.size(); ++i) {
     const int u = pixels[i].x(), v = pixels[i].y();
@@ -151,7 +138,13 @@ PoseWindow::Linearization PoseWindow::linearize(const WindowKeyframe& kf, const 
 double PoseWindow::relativeFactor(size_t a, const Eigen::Isometry3d& Ta, const Eigen::Isometry3d& Tb,
                                   Eigen::Matrix<double, 12, 12>* H, Eigen::Matrix<double, 12, 1>* b) const {
   const WindowKeyframe& kb = keyframes_[a + 1];
-  if (!linked(a + 1)) return 0.0;
+  if (!linked(a + 1)) {
+    if (H && b) {
+      H->setZero();
+      b->setZero();
+    }
+    return 0.0;
+  }
   const Matrix6d info = params_.odometry_information_scale * kb.odometry_information;
   Matrix6d Ja, Jb;
   const Vector6d e = relativePoseResidual(kb.odometry_from_previous, Ta, Tb, &Ja, &Jb);
@@ -190,7 +183,7 @@ void PoseWindow::marginalizeOldest(const FeedbackMaps& maps) {
     // factor, its prior and the relative factor to the next keyframe.
     Eigen::Matrix<double, 12, 12> H = Eigen::Matrix<double, 12, 12>::Zero();
     Eigen::Matrix<double, 12, 1> b = Eigen::Matrix<double, 12, 1>::Zero();
-    const Linearization lo = linearize(keyframes_[0], keyframes_[0].T_world_cam, maps, slots_[0].base);
+    const Linearization lo = linearize(0, keyframes_[0].T_world_cam, maps, slots_[0].base);
     H.topLeftCorner<6, 6>() += lo.H;
     b.head<6>() += lo.b;
     if (has_prior_) {
@@ -257,11 +250,11 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::vector<PixelResult> extra_pixels;
   };
   auto evalBase = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.base = linearize(keyframes_[j], T, maps, slots_[j].base);
+    e.base = linearize(j, T, maps, slots_[j].base);
     ++rep.evaluations;
   };
   auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.extra = linearize(keyframes_[j], T, maps, slots_[j].extra, &e.extra_pixels);
+    e.extra = linearize(j, T, maps, slots_[j].extra, &e.extra_pixels);
   };
   // The whole objective and its normal equations at poses x.
   auto assemble = [&](const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
@@ -290,7 +283,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       Eigen::Matrix<double, 12, 1> br;
       const double c = relativeFactor(j, x[j], x[j + 1], H ? &Hr : nullptr, H ? &br : nullptr);
       cost += c;
-      if (H && linked(j + 1)) {
+      if (H) {
         const int o = static_cast<int>(6 * j);
         H->block<12, 12>(o, o) += Hr;
         b->segment<12>(o) += br;
@@ -367,14 +360,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     }
   }
   for (size_t j = 0; j < n; ++j) keyframes_[j].T_world_cam = x[j];
-  ChannelStats after;
-  std::vector<KfEval> final_ev(n);
-  for (size_t j = 0; j < n; ++j) {
-    final_ev[j].base = ev[j].base;
-    final_ev[j].extra = ev[j].extra;
-  }
-  assemble(x, final_ev, nullptr, nullptr, after);
-  rep.after = after;
+  assemble(x, ev, nullptr, nullptr, rep.after);  // ev is the evaluation at x
   return rep;
 }
 

@@ -94,14 +94,20 @@ TEST(V4l2Convert, Z16IsLittleEndianAndShortBuffersAreErrors) {
   EXPECT_EQ(fourccText(V4L2_PIX_FMT_YUYV), "YUYV");
 }
 
-TEST(V4l2Camera, StreamsDecodesAndCountsDriverDropsAndCorruptFrames) {
-  auto dev = std::make_shared<ScriptedDevice>();
-  dev->drop_at = {3, 4};
-  dev->truncate_at = {6};
+/// Options for the scripted device at its own size.
+V4l2Options scriptedOptions() {
   V4l2Options o;
   o.device = "/dev/video-scripted";
   o.width = 64;
   o.height = 48;
+  return o;
+}
+
+TEST(V4l2Camera, StreamsDecodesAndCountsDriverDropsAndCorruptFrames) {
+  auto dev = std::make_shared<ScriptedDevice>();
+  dev->drop_at = {3, 4};
+  dev->truncate_at = {6};
+  V4l2Options o = scriptedOptions();
   o.formats = {PixelFormat::kMjpeg, PixelFormat::kYuyv};  // MJPEG refused: YUYV negotiated
   auto cam = V4l2Camera::open(o, dev);
   ASSERT_TRUE(cam) << cam.message();
@@ -130,10 +136,7 @@ TEST(V4l2Camera, ReconnectsWhenTheCameraComesBackAndCountsTheGap) {
   auto dev = std::make_shared<ScriptedDevice>();
   dev->unplug_at = 3;
   dev->opens_before_return = 2;
-  V4l2Options o;
-  o.device = "/dev/video-scripted";
-  o.width = 64;
-  o.height = 48;
+  V4l2Options o = scriptedOptions();
   o.reconnect_timeout_s = 5;
   auto cam = V4l2Camera::open(o, dev);
   ASSERT_TRUE(cam) << cam.message();
@@ -155,10 +158,7 @@ TEST(V4l2Camera, ReconnectsWhenTheCameraComesBackAndCountsTheGap) {
 TEST(V4l2Camera, ACameraThatNeverReturnsIsAClearError) {
   auto dev = std::make_shared<ScriptedDevice>();
   dev->unplug_at = 1;
-  V4l2Options o;
-  o.device = "/dev/video-scripted";
-  o.width = 64;
-  o.height = 48;
+  V4l2Options o = scriptedOptions();
   o.reconnect_timeout_s = 0.3;
   auto cam = V4l2Camera::open(o, dev);
   ASSERT_TRUE(cam) << cam.message();

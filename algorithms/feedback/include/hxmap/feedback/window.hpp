@@ -89,7 +89,7 @@ class PoseWindow {
   const std::vector<Eigen::Vector2i>& basePixels(size_t j) const { return slots_[j].base; }
   const FeedbackParams& params() const { return params_; }
 
-  /// One keyframe's residual factor at pose T on `pixels` (u, v at the
+  /// Keyframe j's residual factor at pose T on `pixels` (u, v at the
   /// image level): 0.5 sum w r^2, and the Gauss-Newton H and b (d cost /
   /// d xi = b). Exposed for tests and the marginalization.
   struct PixelResult {
@@ -102,7 +102,7 @@ class PoseWindow {
     double cost = 0;
     ChannelStats counts;
   };
-  Linearization linearize(const WindowKeyframe& kf, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+  Linearization linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
                           const std::vector<Eigen::Vector2i>& pixels, std::vector<PixelResult>* out = nullptr) const;
 
  private:
