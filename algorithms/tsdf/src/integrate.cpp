@@ -173,9 +173,52 @@ inline void fuseAppearance(VoxelBlock& blk, int i, float tsdf, float a, const ui
   st.m2 += delta * (tsdf - st.mean_m);
 }
 
-}  // namespace
+// The inverse of fuseGeometry + fuseAppearance for an observation fused
+// earlier (de-integration): the running averages with the observation taken
+// out. Exact while the weight was below the cap; at the cap the average is
+// treated as if it held max_weight of evidence (what fusion keeps). A voxel
+// left without weight returns to unobserved.
+inline void removeObservation(VoxelBlock& blk, int i, float tsdf, float w, float mu, const uint8_t* rgb) {
+  VoxelGeometry& g = blk.geo[i];
+  const float remaining = g.weight - w;
+  if (!(remaining > 1e-4f)) {
+    g = VoxelGeometry{};
+    blk.color[i] = VoxelColor{};
+    blk.stats[i] = VoxelStats{};
+    return;
+  }
+  const float inv = 1.0f / remaining;
+  g.sdf_m = std::clamp((g.sdf_m * g.weight - tsdf * w) * inv, -mu, mu);
+  if (tsdf >= mu) {
+    g.weight = remaining;
+    return;
+  }
+  if (rgb) {
+    VoxelColor& k = blk.color[i];
+    auto un = [&](uint8_t c, uint8_t o) {
+      const float v = (static_cast<float>(c) * g.weight - static_cast<float>(o) * w) * inv;
+      return static_cast<uint8_t>(std::clamp(v, 0.0f, 255.0f) + 0.5f);
+    };
+    k.r = un(k.r, rgb[0]);
+    k.g = un(k.g, rgb[1]);
+    k.b = un(k.b, rgb[2]);
+  }
+  g.weight = remaining;
+  VoxelStats& st = blk.stats[i];
+  if (st.updates <= 1) {
+    st = VoxelStats{};
+    return;
+  }
+  // Welford in reverse.
+  const float n = static_cast<float>(st.updates);
+  const float mean_before = (st.mean_m * n - tsdf) / (n - 1.0f);
+  st.m2 = std::max(0.0f, st.m2 - (tsdf - mean_before) * (tsdf - st.mean_m));
+  st.mean_m = mean_before;
+  --st.updates;
+}
 
-IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
+template <bool kRemove>
+IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
   IntegrationStats stats;
   const PackedDepth img = packObservation(map, obs);
   const std::vector<int32_t> blocks = allocateBand(map, img, obs.T_world_cam, &stats.blocks_allocated);
@@ -230,6 +273,14 @@ IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const Para
             any = true;
           }
           if (!any) continue;
+          if constexpr (kRemove) {
+            for (int x = 0; x < kBlockSide; ++x) {
+              if (w[x] <= 0.0f) continue;
+              ++local_updates;
+              removeObservation(block, i0 + x, tsdf[x], w[x], mu, has_rgb ? rgb[x] : nullptr);
+            }
+            continue;
+          }
           float a[kBlockSide];
           for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
           for (int x = 0; x < kBlockSide; ++x) {
@@ -246,6 +297,16 @@ IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const Para
   stats.voxels_updated = updated;
   map.markChanged(blocks);
   return stats;
+}
+
+}  // namespace
+
+IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
+  return fuseObservation<false>(map, obs, parallel);
+}
+
+IntegrationStats deintegrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
+  return fuseObservation<true>(map, obs, parallel);
 }
 
 IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {

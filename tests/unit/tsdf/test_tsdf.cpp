@@ -83,6 +83,63 @@ TsdfMap mapOf(const drv::Primitive& prim, double voxel, const Eigen::Vector3d& c
   return map;
 }
 
+// Re-integration (pose feedback): integrating a frame at a wrong pose,
+// taking it back out and integrating it at the right one leaves the map a
+// map fused at the right poses would be (below the weight cap).
+TEST(TsdfIntegration, DeintegrationUndoesAnObservation) {
+  const auto scene = drv::SyntheticScene::room();
+  drv::SyntheticParams sp;
+  const auto traj = drv::syntheticTrajectory(sp);
+  TsdfMap fixed(params(0.02)), expected(params(0.02));
+  const auto a = observation(scene, traj[0].T_world_cam, true, 0);
+  const auto b = observation(scene, traj[10].T_world_cam, true, 10);
+  auto wrong = observation(scene, traj[20].T_world_cam, true, 20);
+  const auto right = wrong;
+  wrong.T_world_cam = right.T_world_cam * Eigen::Translation3f(0.03f, -0.02f, 0.01f) *
+                      Eigen::AngleAxisf(0.02f, Eigen::Vector3f::UnitY());
+  integrate(expected, a);
+  integrate(expected, right);
+  integrate(expected, b);
+  integrate(fixed, a);
+  integrate(fixed, wrong);
+  integrate(fixed, b);
+  const auto removed = deintegrate(fixed, wrong);
+  EXPECT_GT(removed.voxels_updated, 10000u);
+  EXPECT_EQ(removed.blocks_allocated, 0u);  // every block it touches exists already
+  integrate(fixed, right);
+  size_t voxels = 0, weight_off = 0, sdf_off = 0, color_off = 0, near = 0;
+  for (size_t i = 0; i < expected.blockCount(); ++i) {
+    const int32_t j = fixed.find(expected.key(i));
+    ASSERT_GE(j, 0);
+    const VoxelBlock &x = fixed.block(j), &y = expected.block(i);
+    for (int v = 0; v < kBlockVoxels; ++v) {
+      if (y.geo[v].weight == 0) continue;
+      ++voxels;
+      weight_off += std::abs(x.geo[v].weight - y.geo[v].weight) > 1e-3f;
+      // Fusion order differs (b after the right pose vs before it): float
+      // rounding only, far below a millimeter.
+      sdf_off += std::abs(x.geo[v].sdf_m - y.geo[v].sdf_m) > 1e-4f;
+      // Color is a running average over in-band updates only, so it
+      // depends on order more: compared where the surface is.
+      if (std::abs(y.geo[v].sdf_m) < 0.02f) {
+        ++near;
+        color_off += std::abs(x.color[v].r - y.color[v].r) > 8;
+      }
+    }
+  }
+  EXPECT_GT(voxels, 50000u);
+  EXPECT_LE(weight_off, voxels / 1000) << voxels;
+  EXPECT_LE(sdf_off, voxels / 1000) << voxels;
+  EXPECT_LE(color_off, near / 50) << near;  // measured 1.1%
+  // Removing the only observation leaves voxels unobserved.
+  TsdfMap single(params(0.02));
+  integrate(single, a);
+  deintegrate(single, a);
+  for (size_t i = 0; i < single.blockCount(); ++i) {
+    for (int v = 0; v < kBlockVoxels; ++v) ASSERT_EQ(single.block(i).geo[v].weight, 0.0f);
+  }
+}
+
 TEST(TsdfIntegration, SphereRecoveredWithinHalfAVoxel) {
   for (double voxel : {0.01, 0.02}) {
     drv::Primitive sphere;

@@ -48,6 +48,14 @@ std::vector<int32_t> allocateBand(TsdfMap& map, const DepthObservation& obs, siz
 /// blocks).
 IntegrationStats integrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel = serialFor);
 
+/// Takes an observation fused earlier by integrate() back out of the map
+/// (the same observation, the same pose: the voxels it updated get their
+/// averages without it; exact below the weight cap, see removeObservation).
+/// With integrate() at a corrected pose this re-integrates a frame whose
+/// pose changed (pose feedback, paper 3.4). Blocks it leaves empty stay
+/// allocated.
+IntegrationStats deintegrate(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel = serialFor);
+
 /// Plain reference: the same rule written directly (double math, one voxel at
 /// a time), used to test the optimized kernel.
 IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs);
