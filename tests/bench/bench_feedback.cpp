@@ -4,7 +4,7 @@
 // 1: 320x240) with about 2k pixels each (base + top + explore), poses
 // perturbed as tracking drift would leave them. One core (no parallel-for).
 //
-// Usage: bench_feedback [window N] [repetitions]
+// Usage: bench_feedback [window N] [repetitions] [drift scale: 1 as above, 0 = start at the true poses]
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -31,6 +31,7 @@ double median(std::vector<double> v) {
 int main(int argc, char** argv) {
   const int n = argc > 1 ? std::atoi(argv[1]) : 8;
   const int reps = argc > 2 ? std::atoi(argv[2]) : 9;
+  const double drift_scale = argc > 3 ? std::atof(argv[3]) : 1.0;
   const auto scene = drv::SyntheticScene::room();
   drv::SyntheticParams sp;
   sp.frames = 8 * n + 8;
@@ -59,7 +60,7 @@ int main(int argc, char** argv) {
     kf.depth = r.depth;
     kf.intensity = test::intensityOf(r.rgb);
     // Drift: an error growing along the window, about 1 cm and 0.5 deg at its end.
-    const double a = static_cast<double>(k + 1) / n;
+    const double a = drift_scale * static_cast<double>(k + 1) / n;
     Vector6d xi;
     xi << 0.004 * a, -0.006 * a, 0.005 * a, 0.008 * a, -0.004 * a, 0.005 * a;
     kf.T_world_cam = traj[i].T_world_cam * expSE3(xi);

@@ -55,7 +55,11 @@ TEST_F(RealtimeTest, EveryFrameIsProcessedOrCountedAsDropped) {
 TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
   options_.burn_slice_ms = 200;  // four 50 ms periods: never fits
   options_.refine_workers = 2;
-  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
+  FrontendParams p;
+  p.feedback.enabled = false;  // its slices would count too
+  Frontend fe(cam_, p);
+  fe.setInitialPose(T0_);
+  const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
   EXPECT_EQ(s.burn_slices_run, 0u) << s.report;
   EXPECT_EQ(s.counters.slices_admitted, 0u);
   EXPECT_GT(s.counters.jobs_submitted, 0u);
@@ -87,14 +91,68 @@ TEST_F(RealtimeTest, RefinementJobsAreWrittenBackOrCounted) {
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
 }
 
-TEST_F(RealtimeTest, FrontendAppliesPoseCorrectionsToItsTrajectory) {
-  for (int i = 0; i < 3; ++i) fe_.process(frames_[static_cast<size_t>(i)]);
-  PoseCorrection c{frames_[1].stamp_ns, Eigen::Isometry3d::Identity()};
-  c.T_world_cam.translation() = Eigen::Vector3d(1, 2, 3);
-  EXPECT_TRUE(fe_.applyPoseCorrection(c));
-  EXPECT_TRUE(fe_.trajectory()[1].T_world_cam.translation().isApprox(Eigen::Vector3d(1, 2, 3)));
-  EXPECT_FALSE(fe_.applyPoseCorrection({12345, Eigen::Isometry3d::Identity()})) << "no frame with that stamp";
-  EXPECT_EQ(fe_.trajectory().size(), 3u);
+TEST_F(RealtimeTest, KeyframeCorrectionsMoveTheKeyframeAndTheLivePoseAndReintegrate) {
+  size_t k = 0;
+  while (fe_.keyframes() < 2 && k < frames_.size()) fe_.process(frames_[k++]);
+  ASSERT_EQ(fe_.keyframes(), 2u);
+  const std::vector<alg::WindowKeyframe> kfs = fe_.takeFeedbackKeyframes();
+  ASSERT_EQ(kfs.size(), 2u);
+  EXPECT_EQ(kfs[0].id, 0u);
+  EXPECT_EQ(kfs[1].id, 1u);
+  EXPECT_EQ(kfs[0].camera.width, cam_.width / 2) << "feedback images at level 1";
+  EXPECT_TRUE(kfs[0].odometry_information.isZero()) << "the first keyframe has no tracking";
+  EXPECT_GT(kfs[1].odometry_information.trace(), 0.0);
+  EXPECT_TRUE(fe_.takeFeedbackKeyframes().empty());
+  const Trajectory before = fe_.trajectory();
+  size_t kf1 = 0;
+  while (before[kf1].stamp_ns != kfs[1].stamp_ns) ++kf1;
+
+  // The oldest keyframe moves 1 cm: its entry only; queued for re-integration.
+  KeyframeCorrection c{0, kfs[0].T_world_cam};
+  c.T_world_cam.translation().x() += 0.01;
+  const Eigen::Isometry3d live = fe_.lastPose();
+  EXPECT_TRUE(fe_.applyKeyframeCorrection(c));
+  EXPECT_NEAR((fe_.trajectory()[0].T_world_cam.translation() - c.T_world_cam.translation()).norm(), 0.0, 1e-12);
+  for (size_t i = 1; i < before.size(); ++i) EXPECT_TRUE(fe_.trajectory()[i].T_world_cam.isApprox(before[i].T_world_cam));
+  EXPECT_TRUE(fe_.lastPose().isApprox(live)) << "not the newest keyframe: the live pose stays";
+  EXPECT_EQ(fe_.reintegrationsPending(), 1u);
+  const auto blocks = fe_.map().blockCount();
+  EXPECT_EQ(fe_.reintegratePending(), 1);
+  EXPECT_EQ(fe_.reintegrationsPending(), 0u);
+  EXPECT_GE(fe_.map().blockCount(), blocks);
+  EXPECT_EQ(fe_.feedbackCounters().reintegrations, 1u);
+
+  // The newest keyframe moves: the live pose moves with it.
+  KeyframeCorrection d{1, kfs[1].T_world_cam};
+  d.T_world_cam.translation().y() -= 0.002;  // below the re-integration threshold
+  EXPECT_TRUE(fe_.applyKeyframeCorrection(d));
+  EXPECT_NEAR((fe_.lastPose().translation() - (live.translation() - Eigen::Vector3d(0, 0.002, 0))).norm(), 0.0, 1e-9);
+  EXPECT_TRUE(fe_.trajectory()[kf1].T_world_cam.isApprox(d.T_world_cam));
+  EXPECT_EQ(fe_.reintegrationsPending(), 0u);
+  EXPECT_FALSE(fe_.applyKeyframeCorrection({7, Eigen::Isometry3d::Identity()})) << "no such keyframe";
+  EXPECT_EQ(fe_.feedbackCounters().corrections, 2u);
+  EXPECT_EQ(fe_.feedbackCounters().corrections_late, 1u);
+  EXPECT_EQ(fe_.trajectory().size(), before.size());
+}
+
+TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFrontend) {
+  FrontendParams p;
+  p.refine_enabled = false;
+  p.quality_enabled = false;
+  // Drifting odometry, so that the window has something to correct.
+  p.odometry_bias << 0.0004, -0.0006, 0.0002, 0.0008, 0.0004, -0.0006;
+  Frontend fe(cam_, p);
+  fe.setInitialPose(T0_);
+  options_.fps = 4;  // ample slack, also under ThreadSanitizer
+  options_.scheduler.shed_after_periods = 1000;
+  const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
+  EXPECT_EQ(s.keyframes_to_feedback + s.feedback_ring_full, fe.keyframes()) << s.report;
+  EXPECT_GT(s.feedback_windows_solved, 0u) << s.report;
+  // One window per batch of keyframes taken (solved, or skipped at effort 0).
+  EXPECT_LE(s.feedback_windows_solved + s.feedback_windows_skipped, s.keyframes_to_feedback);
+  EXPECT_LE(s.corrections_applied, s.feedback_corrections_sent) << s.report;
+  EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
+  EXPECT_NE(s.report.find("pose feedback: window 8"), std::string::npos) << s.report;
 }
 
 TEST_F(RealtimeTest, StopEndsTheRunWithConsistentOutputs) {

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
+#include <shared_mutex>
 
 #include <Eigen/Cholesky>
 
@@ -47,6 +49,8 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
   slot.grad_x = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
   slot.grad_y = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
   std::vector<Eigen::Vector2i> valid;
+  slot.usable = cv::Mat(I.size(), CV_8U, cv::Scalar(0));
+  const float edge_ratio = static_cast<float>(params_.edge_depth_ratio);
   for (int v = 1; v + 1 < I.rows; ++v) {
     const float* row = I.ptr<float>(v);
     const float* up = I.ptr<float>(v - 1);
@@ -57,7 +61,19 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
     for (int u = 1; u + 1 < I.cols; ++u) {
       gx[u] = 0.5f * (row[u + 1] - row[u - 1]);
       gy[u] = 0.5f * (down[u] - up[u]);
-      if (d[u] > 0 && std::isfinite(d[u])) valid.emplace_back(u, v);
+      if (!(d[u] > 0) || !std::isfinite(d[u])) continue;
+      // Not next to a depth edge or a hole: at silhouettes the map's
+      // surface and the image's disagree by construction (fusion rounds
+      // edges, the sensor mixes foreground and background), and those
+      // residuals bias the solve.
+      const float du = kf.depth.ptr<float>(v - 1)[u], dd = kf.depth.ptr<float>(v + 1)[u];
+      const float jump = edge_ratio * d[u];
+      if (!(std::abs(d[u - 1] - d[u]) < jump && std::abs(d[u + 1] - d[u]) < jump && std::abs(du - d[u]) < jump &&
+            std::abs(dd - d[u]) < jump)) {
+        continue;
+      }
+      valid.emplace_back(u, v);
+      slot.usable.ptr<uint8_t>(v)[u] = 1;
     }
   }
   // Uniform base: systematic sampling of the pixels with depth.
@@ -79,6 +95,8 @@ PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3
   if (out) out->assign(pixels.size(), PixelResult{});
   const WindowKeyframe& kf = keyframes_[j];
   if (!maps.tsdf || kf.intensity.empty()) return L;
+  std::shared_lock<std::shared_mutex> lock;
+  if (maps.mutex) lock = std::shared_lock<std::shared_mutex>(*maps.mutex);
   BlockCache cache(*maps.tsdf);
   const PinholeCamera& cam = kf.camera;
   const FeedbackParams& p = params_;
@@ -231,13 +249,13 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
 
   // Fresh extra pixels: the previous top set plus a uniform explore set.
   auto explore = [&](size_t j, std::vector<Eigen::Vector2i>& extra) {
-    const WindowKeyframe& kf = keyframes_[j];
+    const cv::Mat& usable = slots_[j].usable;
     int tries = 0;
     const int want = static_cast<int>(extra.size()) + p.explore_pixels;
     while (static_cast<int>(extra.size()) < want && tries++ < 8 * std::max(1, p.explore_pixels)) {
-      const int u = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, kf.depth.cols - 2)));
-      const int v = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, kf.depth.rows - 2)));
-      if (kf.depth.at<float>(v, u) > 0) extra.emplace_back(u, v);
+      const int u = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.cols - 2)));
+      const int v = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.rows - 2)));
+      if (slots_[j].usable.at<uint8_t>(v, u)) extra.emplace_back(u, v);
     }
   };
   for (size_t j = 0; j < n; ++j) {
@@ -300,22 +318,35 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     return cost;
   };
 
+  // The caller's stop is asked before each keyframe's evaluation (the
+  // slices a scheduler admits); once it says stop, the solve keeps the last
+  // accepted poses.
+  auto halted = [&] {
+    if (!rep.stopped && stop && stop()) rep.stopped = true;
+    return rep.stopped;
+  };
   std::vector<Eigen::Isometry3d> x(n);
   for (size_t j = 0; j < n; ++j) x[j] = keyframes_[j].T_world_cam;
   std::vector<KfEval> ev(n);
   for (size_t j = 0; j < n; ++j) {
+    if (halted()) return rep;
     evalBase(j, x[j], ev[j]);
     evalExtra(j, x[j], ev[j]);
   }
   Eigen::MatrixXd H;
   Eigen::VectorXd b;
+  // The objective on the base sets alone (the extras' share left out).
+  auto baseCost = [&](const std::vector<Eigen::Isometry3d>& poses, const std::vector<KfEval>& e) {
+    double c = 0;
+    for (size_t j = 0; j < n; ++j) c += e[j].base.cost;
+    for (size_t j = 0; j + 1 < n; ++j) c += relativeFactor(j, poses[j], poses[j + 1], nullptr, nullptr);
+    return c + priorCost(poses[0], nullptr, nullptr);
+  };
   double cost = assemble(x, ev, &H, &b, rep.before);
+  rep.after = rep.before;
+  rep.base_cost_before = rep.base_cost_after = baseCost(x, ev);
   double mu = p.lm_initial_damping;
-  for (int it = 0; it < p.iterations; ++it) {
-    if (stop && stop()) {
-      rep.stopped = true;
-      break;
-    }
+  for (int it = 0; it < p.iterations && !halted(); ++it) {
     ++rep.iterations;
     Eigen::MatrixXd A = H;
     for (int k = 0; k < dim; ++k) A(k, k) += mu * std::max(H(k, k), 1e-6) + 1e-9;
@@ -324,10 +355,11 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::vector<Eigen::Isometry3d> x_try(n);
     for (size_t j = 0; j < n; ++j) x_try[j] = x[j] * expSE3(delta.segment<6>(static_cast<int>(6 * j)));
     std::vector<KfEval> ev_try(n);
-    for (size_t j = 0; j < n; ++j) {
+    for (size_t j = 0; j < n && !halted(); ++j) {
       evalBase(j, x_try[j], ev_try[j]);
       evalExtra(j, x_try[j], ev_try[j]);
     }
+    if (rep.stopped) break;  // the trial is incomplete: x stays
     ChannelStats st;
     const double cost_try = assemble(x_try, ev_try, nullptr, nullptr, st);
     if (cost_try < cost) {
@@ -338,7 +370,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       // Omega for the next iteration: the base, the largest residuals of
       // this one (among the extras: the base is there already), a fresh
       // explore set; the new extras evaluated at the accepted poses.
-      for (size_t j = 0; j < n; ++j) {
+      for (size_t j = 0; j < n && !halted(); ++j) {
         Slot& s = slots_[j];
         std::vector<size_t> order(s.extra.size());
         for (size_t k = 0; k < order.size(); ++k) order[k] = k;
@@ -353,6 +385,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
         explore(j, s.extra);
         evalExtra(j, x[j], ev[j]);
       }
+      if (rep.stopped) break;  // x is accepted; the extras may be stale for the report only
       cost = assemble(x, ev, &H, &b, st);
       if (delta.lpNorm<Eigen::Infinity>() < 1e-7) break;  // converged
     } else {
@@ -360,7 +393,17 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     }
   }
   for (size_t j = 0; j < n; ++j) keyframes_[j].T_world_cam = x[j];
+  {
+    Eigen::MatrixXd Hr = H;
+    for (int k = 0; k < dim; ++k) Hr(k, k) += 1e-9 * std::max(1.0, Hr(k, k));
+    const Eigen::MatrixXd cov = Hr.ldlt().solve(Eigen::MatrixXd::Identity(dim, dim));
+    for (size_t j = 0; j < n; ++j) {
+      const Matrix6d S = cov.block<6, 6>(static_cast<int>(6 * j), static_cast<int>(6 * j));
+      rep.marginal_information.push_back(S.allFinite() ? Matrix6d(S.ldlt().solve(Matrix6d::Identity())) : Matrix6d::Zero());
+    }
+  }
   assemble(x, ev, nullptr, nullptr, rep.after);  // ev is the evaluation at x
+  rep.base_cost_after = baseCost(x, ev);
   return rep;
 }
 

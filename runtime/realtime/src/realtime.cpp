@@ -31,11 +31,6 @@ double percentileOf(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, static_cast<size_t>(std::lround(q * static_cast<double>(v.size() - 1))))];
 }
 
-struct KeyframeMsg {
-  int64_t stamp_ns = 0;
-  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
-};
-
 }  // namespace
 
 void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t start_ns, int thread, int64_t frame) {
@@ -100,7 +95,9 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
   int64_t first_arrival_ns = 0, last_arrival_ns = 0;  // sensor thread until joined
   std::string source_error;                            // sensor thread until joined
-  SpscRing<KeyframeMsg> keyframes(64);
+  // Pose feedback: keyframes (images shared, not copied) to the feedback
+  // thread, keyframe corrections back.
+  SpscRing<alg::WindowKeyframe> keyframes(16);
   // ROI refinement: jobs from the frontend to each worker, outcomes back
   // (one ring per direction and worker: single producer, single consumer).
   // Outcomes and pose corrections are applied by the frontend between
@@ -118,7 +115,10 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   uint64_t refine_submitted = 0, refine_rejected = 0, voxels_written = 0;  // frontend thread
   size_t next_worker = 0;                                                 // frontend thread
   const alg::ImplicitParams implicit = frontend.params().implicit;
-  SpscRing<PoseCorrection> corrections(64);
+  SpscRing<KeyframeCorrection> corrections(64);
+  const alg::FeedbackParams feedback_params = frontend.params().feedback;
+  std::atomic<uint64_t> corrections_full{0}, windows_skipped{0}, windows_shed{0};
+  FeedbackTally feedback_tally;  // feedback thread until joined
   uint64_t patches_applied = 0, corrections_applied = 0;  // frontend thread
   // Refinement outcomes into the map: the frontend thread between frames,
   // the calling thread once the threads are joined.
@@ -179,11 +179,12 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       }
       // Between frames: what background threads sent back.
       applyOutcomes();
-      PoseCorrection correction;
-      while (corrections.tryPop(correction)) corrections_applied += frontend.applyPoseCorrection(correction);
+      KeyframeCorrection correction;
+      while (corrections.tryPop(correction)) corrections_applied += frontend.applyKeyframeCorrection(correction);
       const int64_t start = now_ns();
       sched.frameStarted(start, a.arrival_ns);
       FrameResult r = frontend.process(a.frame);
+      const double r_integrate_ms = r.stage_ms[kIntegrate];
       const int64_t end = now_ns();
       sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
                           static_cast<double>(end - start) * 1e-6);
@@ -211,29 +212,98 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
           jobs_pushed.notify_all();
         }
       }
-      if (r.keyframe) {
-        if (!keyframes.tryPush(KeyframeMsg{r.stamp_ns, r.T_world_cam})) keyframes_full.fetch_add(1);
+      for (alg::WindowKeyframe& kf : frontend.takeFeedbackKeyframes()) {
+        if (!keyframes.tryPush(std::move(kf))) keyframes_full.fetch_add(1);
         keyframes_pushed.fetch_add(1, std::memory_order_release);
         keyframes_pushed.notify_one();
       }
       stats.results.push_back(std::move(r));
       frames_done.fetch_add(1, std::memory_order_relaxed);
+      // A keyframe that feedback moved is re-integrated here, after the
+      // frame, one per frame and only into predicted slack (it costs about
+      // two integrations).
+      if (frontend.reintegrationsPending() > 0) {
+        const FeedbackCounters& fc = frontend.feedbackCounters();
+        const double cost_ms = fc.reintegrations > 0 ? fc.reintegrate_ms / static_cast<double>(fc.reintegrations)
+                                                     : 2.0 * std::max(1.0, r_integrate_ms);
+        if (sched.slackMs(now_ns()) > 1.5 * cost_ms) frontend.reintegratePending(1);
+      }
     }
     frontend_done.store(true);
   });
 
+  // Pose feedback (paper 3.4): new keyframes join the window, then the
+  // window is solved in scheduler-admitted slices (one keyframe's
+  // evaluation each, under the map's shared lock), with as many LM
+  // iterations as the scheduler's effort level allows (0: the window waits
+  // for the next keyframe). Corrections go back to the frontend.
   std::thread feedback([&] {
     nameThisThread("hx-feedback");
-    KeyframeMsg kf;
+    FeedbackSolver solver(feedback_params);
+    const alg::FeedbackMaps maps{&frontend.map(), {}, &frontend.mapMutex()};
+    const int max_effort = std::max(1, sp.max_feedback_effort);
+    alg::WindowKeyframe kf;
     while (!workers_stop.load()) {
       const uint64_t seen = keyframes_pushed.load(std::memory_order_acquire);
-      if (keyframes.tryPop(kf)) {
+      bool added = false;
+      while (keyframes.tryPop(kf)) {
+        solver.add(std::move(kf), maps);
         keyframes_seen.fetch_add(1);
+        added = true;
+      }
+      if (!added) {
+        keyframes_pushed.wait(seen, std::memory_order_acquire);  // no polling
         continue;
       }
-      keyframes_pushed.wait(seen, std::memory_order_acquire);  // no polling
+      const int effort = sched.feedbackEffort();
+      if (effort <= 0) {
+        windows_skipped.fetch_add(1);
+        continue;
+      }
+      const int iterations =
+          std::max(1, (feedback_params.iterations * std::min(effort, max_effort) + max_effort - 1) / max_effort);
+      JobTicket ticket{"feedback", 2.0};
+      sched.jobSubmitted(ticket, now_ns());
+      bool shed = false, in_slice = false;
+      int64_t slice_start = 0;
+      auto endSlice = [&] {
+        if (!in_slice) return;
+        const int64_t t = now_ns();
+        sched.sliceFinished(ticket, static_cast<double>(t - slice_start) * 1e-6);
+        if (trace) trace->add({"feedback", "background", slice_start, t - slice_start, 3 + n_workers, -1, -1});
+        in_slice = false;
+      };
+      auto stopSolve = [&] {
+        endSlice();
+        while (!workers_stop.load()) {
+          const uint64_t epoch = sched.frameEpoch();
+          const Verdict v = sched.admitSlice(ticket, now_ns());
+          if (v == Verdict::kRun) {
+            in_slice = true;
+            slice_start = now_ns();
+            return false;
+          }
+          if (v == Verdict::kShed) {
+            shed = true;
+            return true;
+          }
+          sched.waitForFrameEnd(epoch);
+        }
+        return true;
+      };
+      const std::vector<KeyframeCorrection> out = solver.solve(maps, stopSolve, iterations);
+      endSlice();
+      if (shed) {
+        windows_shed.fetch_add(1);
+      } else {
+        sched.jobFinished(ticket);
+      }
+      for (const KeyframeCorrection& c : out) {
+        if (!corrections.tryPush(c)) corrections_full.fetch_add(1);
+      }
     }
     while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
+    feedback_tally = solver.tally();
   });
 
   // One ROI job on worker w, in scheduler-admitted slices: the field's
@@ -415,7 +485,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       "  ROI refinement: {} jobs made, {} to workers ({} rejected: rings full), {} completed and written back "
       "({:.0f}%), {} shed, {} still queued or running at the end; {} slices, {} voxels written\n"
       "  burn load: {} slices ({:.0f} ms of CPU)\n"
-      "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} pose "
+      "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} keyframe "
       "corrections\n",
       sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()), workers.size(), c.frames_in,
       c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
@@ -428,6 +498,16 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       voxels_written, stats.burn_slices_run, static_cast<double>(stats.burn_slices_run) * options.burn_slice_ms,
       stats.keyframes_to_feedback, stats.feedback_ring_full, stats.patches_applied,
       stats.corrections_applied);
+  if (feedback_params.enabled) {
+    stats.feedback_windows_skipped = windows_skipped.load();
+    stats.feedback_windows_shed = windows_shed.load();
+    stats.feedback_windows_solved = feedback_tally.windows;
+    stats.feedback_corrections_sent = feedback_tally.corrections_sent;
+    stats.report += "  " + feedback_tally.text(frontend.feedbackCounters(), feedback_params);
+    stats.report += fmt::format("  feedback windows skipped at effort 0: {}, cut short by the scheduler: {}; "
+                                "corrections lost (ring full): {}\n",
+                                stats.feedback_windows_skipped, stats.feedback_windows_shed, corrections_full.load());
+  }
   if (const std::string st = source.statsText(); !st.empty()) stats.report += "  source: " + st + "\n";
   if (!source_error.empty()) stats.report += "  the source failed: " + source_error + "\n";
   return stats;

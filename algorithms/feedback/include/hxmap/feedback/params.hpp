@@ -30,6 +30,9 @@ struct FeedbackParams {
   /// before comparison: the map's colors are averages over a voxel, and a
   /// sharper image than the map biases the photometric term near edges.
   double photo_blur_px = 1.0;
+  /// Pixels next to a depth jump larger than this times their depth (or a
+  /// hole) are left out of Omega.
+  double edge_depth_ratio = 0.02;
   double min_gradient = 0.02;     ///< photometric pixels need |grad I| (per pixel) above this
   double max_incidence_deg = 75;  ///< rays more grazing than this to the surface are skipped
   /// Relative-pose factors between consecutive keyframes carry the ICP
@@ -37,6 +40,13 @@ struct FeedbackParams {
   /// is overconfident by orders of magnitude); 0 = no such factors.
   double odometry_information_scale = 1e-3;
   double lm_initial_damping = 1e-4;
+  /// Feedback: a keyframe's estimate goes to the frontend only when it
+  /// differs from the pose the frontend has by more than the solve's own
+  /// noise: delta^T Lambda delta above this (Lambda its marginal
+  /// information; chi-square, 6 degrees of freedom: 16.8 = 99%). The window
+  /// has a few thousand pixels against tracking's whole frame: without
+  /// drift it cannot beat tracking, only add its noise.
+  double min_correction_chi2 = 16.8;
   /// Feedback: keyframes whose pose moved more than this are re-integrated.
   double reintegrate_translation_m = 0.003;
   double reintegrate_rotation_deg = 0.2;

@@ -13,8 +13,10 @@
 // bounds the work with params.iterations and a stop callback.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
+#include <shared_mutex>
 #include <string>
 #include <vector>
 
@@ -49,6 +51,10 @@ struct WindowKeyframe {
 struct FeedbackMaps {
   const TsdfMap* tsdf = nullptr;
   std::vector<const ImplicitSurface*> implicit;
+  /// When the TSDF has a writer on another thread: held shared for each
+  /// keyframe's evaluation (a millisecond or so), so the writer waits at
+  /// most that long.
+  std::shared_mutex* mutex = nullptr;
 };
 
 /// Residual counts and robust costs per channel, summed over the window.
@@ -61,6 +67,14 @@ struct SolveReport {
   int iterations = 0, accepted = 0;
   int evaluations = 0;      ///< residual evaluations (pixel set x keyframes)
   ChannelStats before, after;
+  /// The objective on the fixed base pixel sets (with the relative factors
+  /// and the prior) at the starting and the final poses: comparable, unlike
+  /// before/after, whose top and explore sets change.
+  double base_cost_before = 0, base_cost_after = 0;
+  /// Per keyframe (window order): the information of its pose at the
+  /// solution, the others marginalized ((H^-1)_jj^-1), to test whether a
+  /// correction stands out of the solve's own noise.
+  std::vector<Matrix6d> marginal_information;
   bool stopped = false;     ///< the stop callback ended it early
   std::vector<Eigen::Isometry3d> poses_before;  ///< window order
   std::string failure;      ///< empty when the solve ran
@@ -76,7 +90,8 @@ class PoseWindow {
   void add(WindowKeyframe keyframe, const FeedbackMaps& maps);
 
   /// Levenberg-Marquardt over the window's poses. `stop` (optional) is
-  /// checked between iterations.
+  /// asked before each keyframe's evaluation (about 1/N of an iteration):
+  /// true ends the solve with the last accepted poses.
   SolveReport solve(const FeedbackMaps& maps, const std::function<bool()>& stop = {});
 
   const std::vector<WindowKeyframe>& keyframes() const { return keyframes_; }
@@ -88,6 +103,8 @@ class PoseWindow {
   /// The uniform base pixel set of keyframe j (image coordinates).
   const std::vector<Eigen::Vector2i>& basePixels(size_t j) const { return slots_[j].base; }
   const FeedbackParams& params() const { return params_; }
+  /// LM iterations of the next solves (the scheduler's effort level).
+  void setIterations(int n) { params_.iterations = std::max(1, n); }
 
   /// Keyframe j's residual factor at pose T on `pixels` (u, v at the
   /// image level): 0.5 sum w r^2, and the Gauss-Newton H and b (d cost /
@@ -111,6 +128,7 @@ class PoseWindow {
     std::vector<Eigen::Vector2i> extra;  ///< top + explore of this iteration
     cv::Mat intensity;                   ///< blurred to the map's color resolution
     cv::Mat grad_x, grad_y;              ///< its gradient per pixel
+    cv::Mat usable;                      ///< CV_8U: 1 where a pixel may join Omega
   };
   void prepare(Slot& slot, const WindowKeyframe& kf) const;
   /// A relative factor joins keyframe k to k-1.

@@ -4,17 +4,22 @@
 
 #include <array>
 #include <deque>
+#include <functional>
 #include <memory>
+#include <shared_mutex>
 #include <unordered_map>
 #include <string>
 #include <vector>
 
 #include "hxmap/core/frame.hpp"
 #include "hxmap/core/parallel.hpp"
+#include "hxmap/feedback/params.hpp"
+#include "hxmap/feedback/window.hpp"
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
 #include "hxmap/tracking/icp.hpp"
+#include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/patch.hpp"
 #include "hxmap/tsdf/raycast.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
@@ -44,6 +49,14 @@ struct FrontendParams {
   int keyframe_images = 24;
   /// Jobs not taken by then are dropped, oldest first, and counted.
   int max_pending_jobs = 8;
+  /// Pose feedback (paper 3.4): each keyframe goes to the window
+  /// (takeFeedbackKeyframes) and its corrected poses come back
+  /// (applyKeyframeCorrection). feedback.enabled = false: neither.
+  alg::FeedbackParams feedback;
+  /// Evaluation only: a tracking bias, xi = (omega rad, v m) applied to
+  /// every tracked pose on the right (T <- T exp(xi)), to measure how pose
+  /// feedback copes with drifting odometry. Zero in any real run.
+  Eigen::Matrix<double, 6, 1> odometry_bias = Eigen::Matrix<double, 6, 1>::Zero();
 };
 
 /// One ROI refinement, self-contained: a copy of the ROI's blocks and the
@@ -100,10 +113,20 @@ struct RunCounters {
   double latency_ms = 0;  ///< this frame: arrival to pose
 };
 
-/// A corrected pose for a past frame (from pose feedback).
-struct PoseCorrection {
-  int64_t stamp_ns = 0;
+/// Pose feedback's estimate of a keyframe's pose.
+struct KeyframeCorrection {
+  uint32_t keyframe_id = 0;
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
+
+/// What applying corrections did, summed over a run.
+struct FeedbackCounters {
+  uint64_t corrections = 0;        ///< keyframe corrections applied
+  uint64_t corrections_late = 0;   ///< for keyframes no longer kept (ignored)
+  uint64_t reintegrations = 0;     ///< keyframes de-integrated and integrated at the new pose
+  uint64_t reintegrations_pending = 0;
+  double reintegrate_ms = 0;       ///< total
 };
 
 class Frontend {
@@ -121,12 +144,27 @@ class Frontend {
 
   /// Between frames: fuse a correction computed on a snapshot of the map
   /// (the frontend stays the map's only writer).
-  alg::PatchStats applyPatch(const alg::TsdfPatch& patch) { return alg::applyPatch(map_, patch); }
-  /// Between frames: rewrite the trajectory's pose for that stamp (and the
-  /// last keyframe's, when it is that frame). The live pose is re-estimated
-  /// against the map by the next frame's tracking. False when no frame has
-  /// that stamp.
-  bool applyPoseCorrection(const PoseCorrection& correction);
+  alg::PatchStats applyPatch(const alg::TsdfPatch& patch);
+
+  /// The keyframes made since the last call, for the pose-feedback window
+  /// (their images at feedback.image_level, tracking's relative motion and
+  /// its information). Empty when feedback is disabled.
+  std::vector<alg::WindowKeyframe> takeFeedbackKeyframes();
+  /// Between frames: the keyframe's pose becomes `c.T_world_cam` in the
+  /// trajectory; when it is the newest keyframe the live pose moves with it
+  /// (the next frame is tracked from there). Other frames keep their poses:
+  /// each was tracked against the map, not chained to the keyframe. A keyframe that moved beyond the feedback thresholds is
+  /// queued for re-integration (reintegratePending). False for a keyframe no
+  /// longer kept (slid out of the window).
+  bool applyKeyframeCorrection(const KeyframeCorrection& c);
+  /// Re-integrates up to `max` queued keyframes (de-integrated at the pose
+  /// they were fused with, integrated at the corrected one); the count done.
+  int reintegratePending(int max = 1 << 30);
+  size_t reintegrationsPending() const { return reintegrate_queue_.size(); }
+  const FeedbackCounters& feedbackCounters() const { return feedback_counters_; }
+  /// Held exclusively while the frontend writes the map; readers on other
+  /// threads (pose feedback) hold it shared.
+  std::shared_mutex& mapMutex() const { return map_mutex_; }
 
   /// The ROI refinement jobs made since the last call (paper 3.3).
   std::vector<RefineJob> takeRefineJobs();
@@ -159,6 +197,8 @@ class Frontend {
   void scoreKeyframe(FrameResult& r);
   void keepKeyframeImages(uint32_t id);
   void makeRefineJobs(uint32_t keyframe_id);
+  void keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::IcpResult* icp,
+                            const Eigen::Isometry3d& T_previous_kf);
 
   alg::PinholeCamera camera_;
   FrontendParams params_;
@@ -182,6 +222,70 @@ class Frontend {
   std::unordered_map<uint64_t, uint32_t> block_submitted_;  ///< block -> keyframe id of its last job
   uint64_t next_job_id_ = 1;
   size_t jobs_made_ = 0, jobs_dropped_ = 0;
+  // Pose feedback: the keyframes whose poses may still be corrected, with
+  // what was fused for each (shared buffers), to re-integrate them.
+  struct KeptKeyframe {
+    uint32_t id = 0;
+    size_t trajectory_index = 0;
+    Eigen::Isometry3d T_fused = Eigen::Isometry3d::Identity();  ///< the pose its observation is in the map at
+    alg::DepthObservation observation;
+  };
+  std::deque<KeptKeyframe> kept_;  ///< newest last
+  std::vector<alg::WindowKeyframe> feedback_out_;
+  std::deque<uint32_t> reintegrate_queue_;
+  FeedbackCounters feedback_counters_;
+  mutable std::shared_mutex map_mutex_;
+};
+
+/// Pose feedback's figures for a run's summary.
+struct FeedbackTally {
+  uint64_t windows = 0, stopped = 0, failed = 0;
+  uint64_t corrections_sent = 0;      ///< keyframe estimates that stood out of the solve's noise
+  std::vector<double> solve_ms;       ///< per solved window
+  double cost_before = 0, cost_after = 0;  ///< summed over windows
+  void add(const alg::SolveReport& report, double ms);
+  /// Lines for the run summary (with the frontend's correction counters).
+  std::string text(const FeedbackCounters& counters, const alg::FeedbackParams& params) const;
+};
+
+/// The pose-feedback window as the runtime drives it: keyframes in, a
+/// solve, out the corrections that stand out of the solve's own noise
+/// (FeedbackParams::min_correction_chi2, against the pose the frontend
+/// has). One thread uses it (the offline loop or the real-time feedback
+/// thread).
+class FeedbackSolver {
+ public:
+  explicit FeedbackSolver(const alg::FeedbackParams& params) : window_(params) {}
+  /// A keyframe from the frontend (takeFeedbackKeyframes), with its pose as
+  /// the frontend has it.
+  void add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& maps);
+  /// Solves the window (`iterations` > 0 caps the LM iterations; `stop` as
+  /// in PoseWindow::solve) and returns the corrections to send.
+  std::vector<KeyframeCorrection> solve(const alg::FeedbackMaps& maps, const std::function<bool()>& stop = {},
+                                        int iterations = 0);
+  const FeedbackTally& tally() const { return tally_; }
+  const alg::PoseWindow& window() const { return window_; }
+
+ private:
+  alg::PoseWindow window_;
+  std::vector<std::pair<uint32_t, Eigen::Isometry3d>> published_;  ///< the frontend's pose per window keyframe
+  FeedbackTally tally_;
+};
+
+/// Pose feedback on the calling thread (offline runs, evaluation): after
+/// each frame, new keyframes join the window, the window is solved and its
+/// corrections applied, with every re-integration, before the next frame.
+/// Deterministic. The real-time runner does the same on its feedback
+/// thread.
+class SerialFeedback {
+ public:
+  explicit SerialFeedback(const alg::FeedbackParams& params) : solver_(params) {}
+  /// Call after frontend.process(); true when a window was solved.
+  bool step(Frontend& frontend);
+  const FeedbackTally& tally() const { return solver_.tally(); }
+
+ private:
+  FeedbackSolver solver_;
 };
 
 }  // namespace hxmap::rt

@@ -17,13 +17,15 @@
 //                 each slice (field setup, a few training iterations, the
 //                 write-back) admitted by the scheduler first; or, with
 //                 burn_slice_ms, a synthetic CPU load for scheduler tests.
-//   hx-feedback   takes keyframe messages from an SpscRing (the sliding-window
-//                 optimization itself is not part of this runner yet: it
-//                 counts the keyframes it would optimize).
+//   hx-feedback   pose feedback (paper 3.4): takes keyframes from an
+//                 SpscRing into the sliding window and solves it in
+//                 scheduler-admitted slices, reading the map under its
+//                 shared lock (the frontend holds it exclusively only while
+//                 it writes: fusion, patches, re-integration).
 // Results flow back to the frontend through rings too (TSDF patches from
-// each worker, pose corrections from feedback) and are applied between
-// frames, so the frontend stays the map's only writer. Pose corrections
-// have no producer yet (the window optimization is later work).
+// each worker, keyframe corrections from feedback) and are applied between
+// frames, so the frontend stays the map's only writer; keyframes that
+// moved are re-integrated after a frame when the slack allows.
 // The calling thread prints the status line and watches `stop` (set by a
 // signal handler): on stop the sensor stops publishing, the frontend finishes
 // the frame in hand, workers cancel their jobs, and everything is joined, so
@@ -102,6 +104,10 @@ struct RealtimeStats {
   double frontend_p50_ms = 0, frontend_p99_ms = 0;
   uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
   uint64_t patches_applied = 0, corrections_applied = 0;  ///< results applied between frames
+  /// Pose feedback: windows solved, skipped (effort 0), cut short (shed);
+  /// keyframe corrections sent to the frontend.
+  uint64_t feedback_windows_solved = 0, feedback_windows_skipped = 0, feedback_windows_shed = 0;
+  uint64_t feedback_corrections_sent = 0;
   /// ROI refinement jobs: handed to workers, rejected (every worker's ring
   /// full), completed and written back, shed by the scheduler.
   uint64_t refine_jobs_submitted = 0, refine_jobs_rejected = 0, refine_jobs_completed = 0, refine_jobs_shed = 0;
