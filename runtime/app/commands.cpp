@@ -5,6 +5,7 @@
 #include <atomic>
 #include <csignal>
 #include <filesystem>
+#include <optional>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -315,6 +316,8 @@ int runCommand(const RunOptions& o) {
     stopped = rs.stopped_early;
     end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed, rs.refine_jobs_shed, 0};
   }
+  std::optional<SerialFeedback> feedback;
+  if (fp.feedback.enabled && !realtime) feedback.emplace(fp.feedback);
   Progress progress("mapping", frames.size());
   for (size_t k = 0; k < frames.size() && !realtime; ++k) {
     if (g_stop.load()) {
@@ -352,12 +355,14 @@ int runCommand(const RunOptions& o) {
       }
     }
     // Offline, ROI jobs run to their end right after the keyframe that made
-    // them (deterministic; --realtime runs them in background workers).
+    // them, and the pose-feedback window is solved on each new keyframe
+    // (deterministic; --realtime runs both on background threads).
     for (const RefineJob& job : frontend.takeRefineJobs()) {
       const RefineOutcome outcome = runRefineJob(job, fp.implicit);
       frontend.applyRefinement(outcome);
       refine.add(outcome);
     }
+    if (feedback) feedback->step(frontend);
     const double sum = tally(r);
 #ifdef HXMAP_HAVE_DDS
     if (publisher) {
@@ -418,6 +423,7 @@ int runCommand(const RunOptions& o) {
                            static_cast<double>(total_ms.size()) / wall_s, wall_s,
                            c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
   }
+  if (feedback) summary += feedback->tally().text(frontend.feedbackCounters(), fp.feedback);
   if (!ground_truth.empty()) summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
   const fs::path gt_mesh_path = dataset ? fs::path(dataset->dir()) / "gt_mesh.ply" : fs::path();
   if (dataset && !o.no_mesh_eval && fs::exists(gt_mesh_path)) {
@@ -638,6 +644,7 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
   fp.keyframe_images = c.refine.keyframe_images;
   fp.max_pending_jobs = c.refine.max_pending_jobs;
+  fp.feedback = c.feedback;
   return fp;
 }
 

@@ -181,6 +181,33 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("bias_rays", m.bias_rays, 1, 1 << 20);
   v.number("border_blend_voxels", m.border_blend_voxels, 0, 64);
 
+  auto& f = c.feedback;
+  v.section("feedback");
+  v.boolean("enabled", f.enabled);
+  v.integer("window", f.window, 2, 64);
+  v.integer("image_level", f.image_level, 0, 3);
+  v.integer("base_pixels", f.base_pixels, 16, 1 << 20);
+  v.integer("top_pixels", f.top_pixels, 0, 1 << 20);
+  v.integer("explore_pixels", f.explore_pixels, 0, 1 << 20);
+  v.integer("iterations", f.iterations, 1, 100);
+  v.number("lambda_photo_explicit", f.lambda_photo_explicit, 0, kBig);
+  v.number("lambda_depth_explicit", f.lambda_depth_explicit, 0, kBig);
+  v.number("lambda_photo_implicit", f.lambda_photo_implicit, 0, kBig);
+  v.number("lambda_depth_implicit", f.lambda_depth_implicit, 0, kBig);
+  v.number("depth_sigma_m", f.depth_sigma_m, 1e-5, 1);
+  v.number("photo_sigma", f.photo_sigma, 1e-4, 1);
+  v.number("depth_gate_m", f.depth_gate_m, 1e-4, 10);
+  v.number("photo_gate", f.photo_gate, 1e-3, 1);
+  v.number("photo_blur_px", f.photo_blur_px, 0, 10);
+  v.number("edge_depth_ratio", f.edge_depth_ratio, 1e-4, 1);
+  v.number("min_gradient", f.min_gradient, 0, 1);
+  v.number("max_incidence_deg", f.max_incidence_deg, 1, 90);
+  v.number("odometry_information_scale", f.odometry_information_scale, 0, kBig);
+  v.number("lm_initial_damping", f.lm_initial_damping, 0, kBig);
+  v.number("min_correction_chi2", f.min_correction_chi2, 0, kBig);
+  v.number("reintegrate_translation_m", f.reintegrate_translation_m, 0, 10);
+  v.number("reintegrate_rotation_deg", f.reintegrate_rotation_deg, 0, 180);
+
   v.section("synthetic");
   v.integer("frames", c.synthetic.frames, 1, 100000);
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);

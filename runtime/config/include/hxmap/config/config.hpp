@@ -9,6 +9,7 @@
 #include "hxmap/core/expected.hpp"
 #include "hxmap/preprocess/params.hpp"
 #include "hxmap/implicit/params.hpp"
+#include "hxmap/feedback/params.hpp"
 #include "hxmap/quality/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
@@ -122,6 +123,7 @@ struct HxmapConfig {
   bool quality_enabled = true;
   alg::QualityParams quality;
   RefineConfig refine;
+  alg::FeedbackParams feedback;
   SyntheticConfig synthetic;
   EvalConfig eval;
   RuntimeConfig runtime;
