@@ -19,10 +19,10 @@
 #include <string>
 #include <vector>
 
-#include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "quality_room_sequence.hpp"
 #include "synthetic_fixture.hpp"
 
 using namespace hxmap;
@@ -81,22 +81,12 @@ RunResult runSequence(const Sequence& s, bool feedback) {
 }
 
 bool loadDataset(const std::string& name, const std::string& dir, Sequence& s) {
-  auto ds = drv::Dataset::open(dir);
-  if (!ds) {
-    std::fprintf(stderr, "%s\n", ds.message().c_str());
-    return false;
-  }
+  test::BenchSequence b;
+  if (!test::loadDatasetSequence(dir, b)) return false;
   s.name = name;
-  s.camera = (*ds)->camera();
-  s.ground_truth = (*ds)->groundTruth();
-  for (size_t i = 0; i < (*ds)->size(); ++i) {
-    auto f = (*ds)->load(i);
-    if (!f) {
-      std::fprintf(stderr, "%s\n", f.message().c_str());
-      return false;
-    }
-    s.frames.push_back(std::move(*f));
-  }
+  s.camera = b.camera;
+  s.ground_truth = std::move(b.ground_truth);
+  s.frames = std::move(b.frames);
   return true;
 }
 

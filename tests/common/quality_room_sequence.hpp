@@ -18,6 +18,28 @@ struct BenchSequence {
   alg::PinholeCamera camera;
 };
 
+/// Every frame of the dataset in `dir` with its camera and ground truth.
+/// False (the reason on stderr) when the folder or a frame cannot be read.
+inline bool loadDatasetSequence(const std::string& dir, BenchSequence& out) {
+  out = BenchSequence{};
+  auto ds = drv::Dataset::open(dir);
+  if (!ds) {
+    std::fprintf(stderr, "%s\n", ds.message().c_str());
+    return false;
+  }
+  out.camera = (*ds)->camera();
+  out.ground_truth = (*ds)->groundTruth();
+  for (size_t i = 0; i < (*ds)->size(); ++i) {
+    auto f = (*ds)->load(i);
+    if (!f) {
+      std::fprintf(stderr, "%s\n", f.message().c_str());
+      return false;
+    }
+    out.frames.push_back(std::move(*f));
+  }
+  return true;
+}
+
 /// `dir` empty or "-": render. False (the reason on stderr) when the folder
 /// or one of its frames cannot be read.
 inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out) {
@@ -25,24 +47,7 @@ inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out) 
   sp.frames = 240;
   sp.trajectory = "inspect";
   out = BenchSequence{};
-  if (!dir.empty() && dir != "-") {
-    auto ds = drv::Dataset::open(dir);
-    if (!ds) {
-      std::fprintf(stderr, "%s\n", ds.message().c_str());
-      return false;
-    }
-    out.camera = (*ds)->camera();
-    out.ground_truth = (*ds)->groundTruth();
-    for (size_t i = 0; i < (*ds)->size(); ++i) {
-      auto f = (*ds)->load(i);
-      if (!f) {
-        std::fprintf(stderr, "%s\n", f.message().c_str());
-        return false;
-      }
-      out.frames.push_back(std::move(*f));
-    }
-    return true;
-  }
+  if (!dir.empty() && dir != "-") return loadDatasetSequence(dir, out);
   std::fprintf(stderr, "rendering the quality room (%d frames, inspect trajectory) ...\n", sp.frames);
   const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
   out.camera = sp.camera;

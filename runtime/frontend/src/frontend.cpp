@@ -188,7 +188,6 @@ bool Frontend::applyKeyframeCorrection(const KeyframeCorrection& c) {
       reintegrate_queue_.push_back(c.keyframe_id);
     }
   }
-  feedback_counters_.reintegrations_pending = reintegrate_queue_.size();
   return true;
 }
 
@@ -215,7 +214,6 @@ int Frontend::reintegratePending(int max) {
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     ++done;
   }
-  feedback_counters_.reintegrations_pending = reintegrate_queue_.size();
   return done;
 }
 

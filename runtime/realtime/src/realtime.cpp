@@ -223,7 +223,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       // frame, one per frame and only into predicted slack (it costs about
       // two integrations).
       if (frontend.reintegrationsPending() > 0) {
-        const FeedbackCounters& fc = frontend.feedbackCounters();
+        const FeedbackCounters fc = frontend.feedbackCounters();
         const double cost_ms = fc.reintegrations > 0 ? fc.reintegrate_ms / static_cast<double>(fc.reintegrations)
                                                      : 2.0 * std::max(1.0, r_integrate_ms);
         if (sched.slackMs(now_ns()) > 1.5 * cost_ms) frontend.reintegratePending(1);

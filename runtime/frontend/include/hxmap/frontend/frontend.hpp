@@ -161,7 +161,11 @@ class Frontend {
   /// they were fused with, integrated at the corrected one); the count done.
   int reintegratePending(int max = 1 << 30);
   size_t reintegrationsPending() const { return reintegrate_queue_.size(); }
-  const FeedbackCounters& feedbackCounters() const { return feedback_counters_; }
+  FeedbackCounters feedbackCounters() const {
+    FeedbackCounters c = feedback_counters_;
+    c.reintegrations_pending = reintegrate_queue_.size();
+    return c;
+  }
   /// Held exclusively while the frontend writes the map; readers on other
   /// threads (pose feedback) hold it shared.
   std::shared_mutex& mapMutex() const { return map_mutex_; }
