@@ -3,13 +3,23 @@
 // alone at 1 cm and 2 cm voxels with the memory it takes per square meter of
 // surface. Prints numbers; asserts nothing (timing is not a test).
 //
-//   bench_frontend [dataset_dir] [repeats]
+//   bench_frontend [dataset_dir] [repeats] [frontend]
+//
+// "frontend" stops after the per-stage table. One core throughout: hxmap's
+// stages run serially, OpenCV's own threading is switched off, and the
+// program restarts itself with OMP_NUM_THREADS=1 (unless set) so that
+// Open3D's OpenMP loops run on one thread too.
 #include <algorithm>
+#include <cstdlib>
 #include <cstring>
 #include <chrono>
 #include <cstdio>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
+
+#include <opencv2/core.hpp>
 
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/frontend/frontend.hpp"
@@ -38,6 +48,15 @@ double median(std::vector<double> v) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  if (std::getenv("OMP_NUM_THREADS") == nullptr) {
+    // OpenMP reads the variable when its library loads: set it and restart.
+    setenv("OMP_NUM_THREADS", "1", 1);
+    execv("/proc/self/exe", argv);
+    std::perror("bench_frontend: restarting with OMP_NUM_THREADS=1");
+    return 2;
+  }
+  cv::setNumThreads(0);
+  const bool frontend_only = argc > 3 && std::string(argv[3]) == "frontend";
   const std::string dir = argc > 1 ? argv[1] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
   const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 3;
   auto ds = drv::Dataset::open(dir);
@@ -87,21 +106,43 @@ int main(int argc, char** argv) {
   std::printf("  %-12s %8.2f\n", "total", median(total));
   std::printf("  %-12s %8.2f  (whole map, once per run)\n", "mesh", median(mesh_ms));
   if (ate >= 0) std::printf("  ATE RMSE %.2f cm\n", 100 * ate);
+  if (frontend_only) return 0;
 
   // Integration alone at 1 and 2 cm, along the tracked poses; Open3D's
   // ScalableTSDFVolume on the same frames, poses, voxel size and truncation
-  // as the peer (run with OMP_NUM_THREADS=1 for one core).
+  // as the peer, on one thread (OMP_NUM_THREADS=1, see main). DESIGN: the
+  // two integrate each frame in turn, so that the machine's load drifting
+  // during the run weighs on both alike and the ratio stays honest.
+#ifdef HXMAP_HAVE_OPEN3D
+  namespace o3d = open3d;
+  const auto& c = d.camera();
+  const o3d::camera::PinholeCameraIntrinsic intrinsic(c.width, c.height, c.fx, c.fy, c.cx, c.cy);
+  std::vector<std::shared_ptr<o3d::geometry::RGBDImage>> images;
+  for (const auto& f : frames) {
+    o3d::geometry::Image color, depth;
+    color.Prepare(c.width, c.height, 3, 1);
+    std::memcpy(color.data_.data(), f.rgb.data, color.data_.size());
+    depth.Prepare(c.width, c.height, 1, 4);
+    std::memcpy(depth.data_.data(), f.depth.data, depth.data_.size());  // float meters
+    images.push_back(o3d::geometry::RGBDImage::CreateFromColorAndDepth(color, depth, 1.0,
+                                                                       alg::TsdfParams{}.max_integration_depth_m, false));
+  }
+#endif
   std::printf("\nintegration alone, ms/frame (median) and memory\n");
   for (double voxel : {0.02, 0.01}) {
     alg::TsdfParams tp;
     tp.voxel_size_m = voxel;
     tp.truncation_m = 4 * voxel;
-    std::vector<double> t;
+    std::vector<double> t, t3;
     double band_blocks = 0, voxel_updates = 0;
     alg::MapMemory mem;
     double area = 0;
     for (int r = 0; r < repeats; ++r) {
       alg::TsdfMap map(tp);
+#ifdef HXMAP_HAVE_OPEN3D
+      o3d::pipelines::integration::ScalableTSDFVolume volume(voxel, tp.truncation_m,
+                                                             o3d::pipelines::integration::TSDFVolumeColorType::RGB8);
+#endif
       for (size_t i = 0; i < frames.size(); ++i) {
         const auto pre = alg::preprocessFrame(frames[i], d.camera(), alg::PreprocessParams{});
         const alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, d.camera(),
@@ -111,6 +152,12 @@ int main(int argc, char** argv) {
         t.push_back(ms(t0, Clock::now()));
         band_blocks += static_cast<double>(st.blocks_in_band);
         voxel_updates += static_cast<double>(st.voxels_updated);
+#ifdef HXMAP_HAVE_OPEN3D
+        const Eigen::Matrix4d extrinsic = poses[i].T_world_cam.inverse().matrix();  // world to camera
+        const auto t1 = Clock::now();
+        volume.Integrate(*images[i], intrinsic, extrinsic);
+        t3.push_back(ms(t1, Clock::now()));
+#endif
       }
       mem = map.memory();
       area = alg::extractMesh(map, alg::MeshParams{}).surfaceArea();
@@ -120,35 +167,11 @@ int main(int argc, char** argv) {
     const double n = static_cast<double>(t.size());
     std::printf("         per frame %.0f blocks in the band, %.0f voxel updates\n", band_blocks / n,
                 voxel_updates / n);
-#ifdef HXMAP_HAVE_OPEN3D
-    namespace o3d = open3d;
-    const auto& c = d.camera();
-    const o3d::camera::PinholeCameraIntrinsic intrinsic(c.width, c.height, c.fx, c.fy, c.cx, c.cy);
-    std::vector<std::shared_ptr<o3d::geometry::RGBDImage>> images;
-    for (const auto& f : frames) {
-      o3d::geometry::Image color, depth;
-      color.Prepare(c.width, c.height, 3, 1);
-      std::memcpy(color.data_.data(), f.rgb.data, color.data_.size());
-      depth.Prepare(c.width, c.height, 1, 4);
-      std::memcpy(depth.data_.data(), f.depth.data, depth.data_.size());  // float meters
-      images.push_back(o3d::geometry::RGBDImage::CreateFromColorAndDepth(
-          color, depth, 1.0, tp.max_integration_depth_m, false));
+    if (!t3.empty()) {
+      const double ratio = median(t3) / median(t);
+      std::printf("  Open3D voxel %.0f cm: %8.2f ms/frame (ScalableTSDFVolume)  -> hxmap is %.2fx %s\n", voxel * 100,
+                  median(t3), ratio >= 1 ? ratio : 1 / ratio, ratio >= 1 ? "faster" : "slower");
     }
-    std::vector<double> t3;
-    for (int r = 0; r < repeats; ++r) {
-      o3d::pipelines::integration::ScalableTSDFVolume volume(voxel, tp.truncation_m,
-                                                             o3d::pipelines::integration::TSDFVolumeColorType::RGB8);
-      for (size_t i = 0; i < images.size(); ++i) {
-        const Eigen::Matrix4d extrinsic = poses[i].T_world_cam.inverse().matrix();  // world to camera
-        const auto t0 = Clock::now();
-        volume.Integrate(*images[i], intrinsic, extrinsic);
-        t3.push_back(ms(t0, Clock::now()));
-      }
-    }
-    const double ratio = median(t3) / median(t);
-    std::printf("  Open3D voxel %.0f cm: %8.2f ms/frame (ScalableTSDFVolume)  -> hxmap is %.2fx %s\n", voxel * 100,
-                median(t3), ratio >= 1 ? ratio : 1 / ratio, ratio >= 1 ? "faster" : "slower");
-#endif
   }
   return 0;
 }

@@ -121,7 +121,15 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         // Depth z along the optical axis is t / len along the ray.
         const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
         const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
-        const float zh = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
+        const float predicted = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
+        // A pixel without a prediction first tries its left neighbour's hit
+        // of this cast as one: holes in the prediction that the map can
+        // fill grow in from their edges at two samples per pixel instead of
+        // a march each. When that fails the pixel is treated as its own
+        // prediction says (march from the tile bound, or not cast).
+        float zh = predicted;
+        const bool from_neighbour = predicted <= 0.0f && u > 0 && drow[u - 1] > 0.0f;
+        if (from_neighbour) zh = drow[u - 1];
         if (zh < 0.0f) continue;  // predicted empty
         float hit = -1;
         if (zh > 0.0f) {
@@ -129,22 +137,33 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
           // so the surface is almost always within a voxel of it. Bracket
           // it directly with trilinear samples 1.5 voxels either side (the
           // truncated SDF is linear there) and refine: three samples, no
-          // march. Only rays without such a bracket march below.
+          // march. (A one-voxel bracket and its secant alone saved 0.6 ms
+          // per frame but cost tracking accuracy: ATE orbit 0.13 -> 0.16 cm.)
+          // Where a sample has no trilinear neighbourhood (the edge of the
+          // observed surface) a march would not find a bracketed crossing
+          // either: no hit, no march.
           const float ta = (zh - 1.5f * vs) * len, tb = (zh + 1.5f * vs) * len;
           float sa = 0, sb = 0;
-          if (ta > tile_start && cache.sample(origin + ta * dir, min_w, sa) && sa > 0 &&
-              cache.sample(origin + tb * dir, min_w, sb) && sb <= 0) {
-            hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
+          const bool valid = ta > tile_start && cache.sample(origin + ta * dir, min_w, sa) &&
+                             cache.sample(origin + tb * dir, min_w, sb);
+          if (!valid && !from_neighbour) continue;
+          if (valid && sa > 0 && sb <= 0) hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
+          if (hit < 0 && from_neighbour) {
+            if (predicted < 0.0f) continue;
+            zh = 0.0f;  // march from the tile bound
           }
         }
         // March: nearest-voxel samples, steps of the SDF, block skipping. A
         // hinted ray starts before the predicted surface; should its first
         // sample lie behind a surface already, it starts over from the tile
         // bound.
-        float t = tile_start;
+        float t = tile_start, t_end = t_max;
         bool from_hint = false;
         if (hit < 0 && zh > 0.0f) {
+          // The surface, if any, lies within the truncation band around
+          // the prediction: the march covers that band only.
           const float start = (zh - mu - 2.0f * vs) * len;
+          t_end = std::min(t_max, (zh + mu + 2.0f * vs) * len);
           if (start > t) {
             t = start;
             from_hint = true;
@@ -152,7 +171,7 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         }
         float prev_t = -1, prev_sdf = 0;
         int guard = 0;
-        while (hit < 0 && t < t_max && ++guard < 4096) {
+        while (hit < 0 && t < t_end && ++guard < 4096) {
           const Eigen::Vector3f p = origin + t * dir;
           const Eigen::Vector3i g = map.voxelOf(p);
           int vi = 0;

@@ -417,13 +417,14 @@ void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   if (static_cast<int>(model_.size()) > model_level && model_[model_level].depth.size() == hint.size()) {
     hint = hint.clone();
     const cv::Mat& previous = model_[model_level].depth;
-    const int phase = static_cast<int>(trajectory_.size() % 4);
+    const int phase = static_cast<int>(trajectory_.size() % 16);
     for (int v = 0; v < hint.rows; ++v) {
       float* h = hint.ptr<float>(v);
       const float* p = previous.ptr<float>(v);
+      const int row_phase = (phase + 4 * (v & 3)) & 15;
       for (int u = 0; u < hint.cols; ++u) {
         if (h[u] > 0.0f) continue;
-        h[u] = p[u] > 0.0f ? p[u] : (((u + 2 * v + phase) & 3) == 0 ? 0.0f : -1.0f);
+        h[u] = p[u] > 0.0f ? p[u] : (((u + row_phase) & 15) == 0 ? 0.0f : -1.0f);
       }
     }
   }
