@@ -289,6 +289,7 @@ int runCommand(const RunOptions& o) {
     ro.fps = o.fps;
     ro.burn_slice_ms = o.burn_ms;
     ro.refine_workers = c.runtime.refine_workers;
+    ro.background_nice = c.runtime.background_nice;
     ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
     ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
 #ifdef HXMAP_HAVE_DDS

@@ -1,5 +1,6 @@
 #include "hxmap/tsdf/tsdf_map.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace hxmap::alg {
@@ -11,6 +12,29 @@ TsdfMap::TsdfMap(const TsdfParams& params)
       inv_voxel_size_(1.0f / voxel_size_),
       inv_block_size_(1.0f / (voxel_size_ * kBlockSide)) {
   rehash(1 << 12);
+}
+
+TsdfMap::TsdfMap(const TsdfMap& other)
+    : params_(other.params_),
+      voxel_size_(other.voxel_size_),
+      truncation_(other.truncation_),
+      inv_voxel_size_(other.inv_voxel_size_),
+      inv_block_size_(other.inv_block_size_),
+      keys_(other.keys_),
+      block_revisions_(other.block_revisions_),
+      revision_(other.revision_),
+      table_keys_(other.table_keys_),
+      table_values_(other.table_values_) {
+  chunks_.reserve(other.chunks_.size());
+  for (const auto& chunk : other.chunks_) {
+    chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
+    std::copy(chunk.get(), chunk.get() + kChunkBlocks, chunks_.back().get());
+  }
+}
+
+TsdfMap& TsdfMap::operator=(const TsdfMap& other) {
+  if (this != &other) *this = TsdfMap(other);
+  return *this;
 }
 
 
@@ -33,7 +57,7 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   if ((keys_.size() + 1) * 2 > table_keys_.size()) rehash(table_keys_.size() * 2);
   const int32_t index = static_cast<int32_t>(keys_.size());
   keys_.push_back(key);
-  blocks_.emplace_back();
+  if (keys_.size() > chunks_.size() * kChunkBlocks) chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
   block_revisions_.push_back(0);
   const uint64_t packed = pack(key) + 1;
   const size_t mask = table_keys_.size() - 1;
@@ -182,7 +206,7 @@ bool TsdfMap::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) const 
 }
 
 MapMemory TsdfMap::memory() const {
-  return {keys_.size(), keys_.size() * (sizeof(VoxelBlock) + sizeof(BlockKey)) +
+  return {keys_.size(), chunks_.size() * kChunkBlocks * sizeof(VoxelBlock) + keys_.size() * sizeof(BlockKey) +
                             table_keys_.size() * (sizeof(uint64_t) + sizeof(int32_t))};
 }
 
@@ -200,7 +224,7 @@ std::vector<int32_t> TsdfMap::changedSince(uint64_t revision) const {
 }
 
 void TsdfMap::clear() {
-  blocks_.clear();
+  chunks_.clear();
   keys_.clear();
   block_revisions_.clear();
   ++revision_;

@@ -32,6 +32,33 @@ class StageTimer {
 Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel)
     : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf), quality_(params.quality) {}
 
+void Frontend::warmUp() {
+  FrontendParams p = params_;
+  p.quality_enabled = false;
+  p.refine_enabled = false;
+  p.feedback.enabled = false;
+  Frontend scratch(camera_, p, parallel_);
+  RgbdFrame f;
+  f.depth = cv::Mat(camera_.height, camera_.width, CV_32F);
+  f.rgb = cv::Mat(camera_.height, camera_.width, CV_8UC3);
+  for (int i = 0; i < 4; ++i) {
+    // A wall 1.5 m away, tilted, with a checker texture; it shifts by a
+    // few millimeters per frame so that tracking has work to do.
+    for (int v = 0; v < camera_.height; ++v) {
+      float* d = f.depth.ptr<float>(v);
+      auto* c = f.rgb.ptr<cv::Vec3b>(v);
+      for (int u = 0; u < camera_.width; ++u) {
+        d[u] = 1.5f + 0.0004f * static_cast<float>(u) + 0.002f * static_cast<float>(i);
+        const uint8_t k = (((u + 2 * i) / 16 + v / 16) & 1) ? 200 : 60;
+        c[u] = cv::Vec3b(k, k, k);
+      }
+    }
+    f.stamp_ns = static_cast<int64_t>(i) * 33'000'000;
+    f.seq = static_cast<uint32_t>(i);
+    scratch.process(f);
+  }
+}
+
 FrameResult Frontend::process(const RgbdFrame& frame) {
   FrameResult r;
   r.stamp_ns = frame.stamp_ns;

@@ -5,10 +5,14 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <thread>
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <fmt/format.h>
@@ -24,6 +28,16 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 void nameThisThread(const char* name) { pthread_setname_np(pthread_self(), name); }
+
+// Lowers the calling thread's priority (Linux nice values are per thread).
+// Failure is logged, not fatal: the thread then runs at the process's.
+void niceThisThread(const char* name, int nice) {
+  if (nice <= 0) return;
+  const auto tid = static_cast<id_t>(::syscall(SYS_gettid));
+  if (::setpriority(PRIO_PROCESS, tid, nice) != 0) {
+    spdlog::warn("{}: could not set nice {}: {}", name, nice, std::strerror(errno));
+  }
+}
 
 double percentileOf(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -139,8 +153,12 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   frontend_ms.reserve(source.size());
   stats.results.reserve(source.size());
 
+  // The sensor starts once the frontend has warmed up on its own thread
+  // (Frontend::warmUp; the thread's allocator arena is then grown too).
+  std::atomic<bool> frontend_ready{!options.warm_up};
   std::thread sensor([&] {
     nameThisThread("hx-sensor");
+    frontend_ready.wait(false);
     for (int64_t i = 0; !stop.load(); ++i) {
       auto next = source.next(stop);
       if (!next) {
@@ -167,6 +185,11 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
 
   std::thread frontend_thread([&] {
     nameThisThread("hx-frontend");
+    if (options.warm_up) {
+      frontend.warmUp();
+      frontend_ready.store(true);
+      frontend_ready.notify_all();
+    }
     while (true) {
       // Read the publish count before looking: a frame published after the
       // look changes it, so the wait below cannot miss it.
@@ -239,6 +262,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   // for the next keyframe). Corrections go back to the frontend.
   std::thread feedback([&] {
     nameThisThread("hx-feedback");
+    niceThisThread("hx-feedback", options.background_nice);
     FeedbackSolver solver(feedback_params);
     const alg::FeedbackMaps maps{&frontend.map(), {}, &frontend.mapMutex()};
     const int max_effort = std::max(1, sp.max_feedback_effort);
@@ -364,6 +388,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     workers.emplace_back([&, w] {
       const std::string name = fmt::format("hx-refine-{}", w);
       nameThisThread(name.c_str());
+      niceThisThread(name.c_str(), options.background_nice);
       if (!burn) {
         RefineJob job;
         while (!workers_stop.load()) {

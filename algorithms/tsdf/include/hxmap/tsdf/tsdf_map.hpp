@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -86,6 +87,10 @@ struct MapMemory {
 class TsdfMap {
  public:
   explicit TsdfMap(const TsdfParams& params);
+  TsdfMap(const TsdfMap& other);
+  TsdfMap& operator=(const TsdfMap& other);
+  TsdfMap(TsdfMap&&) noexcept = default;
+  TsdfMap& operator=(TsdfMap&&) noexcept = default;
 
   const TsdfParams& params() const { return params_; }
   float voxelSize() const { return voxel_size_; }
@@ -95,8 +100,10 @@ class TsdfMap {
 
   size_t blockCount() const { return keys_.size(); }
   const BlockKey& key(size_t block_index) const { return keys_[block_index]; }
-  VoxelBlock& block(size_t block_index) { return blocks_[block_index]; }
-  const VoxelBlock& block(size_t block_index) const { return blocks_[block_index]; }
+  VoxelBlock& block(size_t block_index) { return chunks_[block_index / kChunkBlocks][block_index % kChunkBlocks]; }
+  const VoxelBlock& block(size_t block_index) const {
+    return chunks_[block_index / kChunkBlocks][block_index % kChunkBlocks];
+  }
 
   /// Change tracking, for publishing map updates: every writer (integration,
   /// patches) calls markChanged on the blocks it wrote, which stamps them
@@ -119,7 +126,7 @@ class TsdfMap {
     }
   }
   /// Index of the block, allocating it (voxels zero-weight) when missing.
-  /// May move blocks in memory: do not hold references across calls.
+  /// Blocks never move: references stay valid until clear().
   int32_t findOrAllocate(const BlockKey& key);
 
   BlockKey blockOf(const Eigen::Vector3f& p_world) const {
@@ -143,7 +150,7 @@ class TsdfMap {
     const int32_t b = find(key);
     if (b < 0) return nullptr;
     index = VoxelBlock::index(global.x() & 7, global.y() & 7, global.z() & 7);
-    return &blocks_[b];
+    return &block(static_cast<size_t>(b));
   }
 
   /// Trilinear SDF at p from the 8 surrounding voxel centers; false when any
@@ -166,7 +173,13 @@ class TsdfMap {
   TsdfParams params_;
   float voxel_size_, truncation_;
   float inv_voxel_size_, inv_block_size_;
-  std::vector<VoxelBlock> blocks_;
+  // DESIGN: blocks live in fixed chunks of kChunkBlocks, not one growing
+  // vector: growing a vector of 24 KiB blocks copied the whole map at every
+  // doubling, a stall of tens of ms on the frontend thread for a map of a
+  // few thousand blocks (a deadline miss), and reserved up to twice the
+  // memory in use. A chunk is 384 KiB; at most one is partly used.
+  static constexpr size_t kChunkBlocks = 16;
+  std::vector<std::unique_ptr<VoxelBlock[]>> chunks_;
   std::vector<BlockKey> keys_;
   std::vector<uint64_t> block_revisions_;  ///< revision of each block's last write
   uint64_t revision_ = 0;

@@ -58,6 +58,11 @@ struct RuntimeConfig {
   int refine_workers = 1;          ///< background refinement threads (--realtime)
   double deadline_margin_ms = 1.0; ///< kept free before each frame is due
   int shed_after_periods = 8;      ///< background jobs without slack this long are shed
+  /// Nice value of the background threads (refinement workers, pose
+  /// feedback) in --realtime and camera runs: on a loaded CPU the kernel
+  /// then gives the sensor and frontend threads the cores first. 0 = as
+  /// the process.
+  int background_nice = 10;
 };
 
 /// ROI refinement (paper 3.3): which jobs the frontend makes, and the

@@ -85,6 +85,17 @@ struct RealtimeOptions {
   double fps = 0;                  ///< playback rate of a frame vector; 0 = the recorded stamps
   SchedulerParams scheduler;       ///< target_fps is set from the source's rate
   int refine_workers = 1;
+  /// Nice value the refinement workers and the pose-feedback thread take
+  /// (Linux: per thread; 0 = unchanged). DESIGN: the scheduler admits
+  /// background slices only into predicted slack, but a slice already
+  /// running when a frame arrives competes with the frontend for the
+  /// cores; at the same priority the kernel splits them evenly and the
+  /// frontend overran its deadline (4 misses in 35 frames at 30 FPS on
+  /// two cores). Niced, the kernel hands the frontend the core first.
+  int background_nice = 10;
+  /// Run Frontend::warmUp on the frontend thread before the sensor thread
+  /// reads the first frame.
+  bool warm_up = true;
   /// Inject a CPU-burning refinement load: jobs of slices of this many ms,
   /// resubmitted as soon as one ends or is shed (0 = none).
   double burn_slice_ms = 0;
