@@ -63,6 +63,26 @@ TEST_F(Pipeline, TracksNoisySyntheticSequence) {
   EXPECT_EQ(chosen, std::min<size_t>(qp.max_blocks, static_cast<size_t>(std::ceil(qp.top_fraction * scores.size()))));
 }
 
+TEST_F(Pipeline, WarmUpLeavesTheFrontendAsNew) {
+  // The warm-up maps synthetic frames into a scratch map: the frontend's
+  // own map, trajectory and keyframes stay empty, and it then maps a
+  // sequence exactly as a frontend that never warmed up.
+  Frontend warm(kCam, FrontendParams{}), cold(kCam, FrontendParams{});
+  warm.warmUp();
+  EXPECT_EQ(warm.map().blockCount(), 0u);
+  EXPECT_TRUE(warm.trajectory().empty());
+  EXPECT_EQ(warm.keyframes(), 0u);
+  warm.setInitialPose(traj_[0].T_world_cam);
+  cold.setInitialPose(traj_[0].T_world_cam);
+  for (int i = 0; i < 8; ++i) {
+    const RgbdFrame f = frame(i);
+    const FrameResult a = warm.process(f), b = cold.process(f);
+    EXPECT_EQ(a.tracked, b.tracked);
+    EXPECT_TRUE(a.T_world_cam.isApprox(b.T_world_cam, 1e-12)) << "frame " << i;
+  }
+  EXPECT_EQ(warm.map().blockCount(), cold.map().blockCount());
+}
+
 TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirBox) {
   FrontendParams p;
   p.implicit.iterations = 20;

@@ -186,9 +186,14 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   std::thread frontend_thread([&] {
     nameThisThread("hx-frontend");
     if (options.warm_up) {
+      struct Ready {  // released however the warm-up ends
+        std::atomic<bool>& flag;
+        ~Ready() {
+          flag.store(true);
+          flag.notify_all();
+        }
+      } ready{frontend_ready};
       frontend.warmUp();
-      frontend_ready.store(true);
-      frontend_ready.notify_all();
     }
     while (true) {
       // Read the publish count before looking: a frame published after the

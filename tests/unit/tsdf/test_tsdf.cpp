@@ -213,6 +213,27 @@ TEST(TsdfMap, AllocatesOnlyTheBandAndAccountsMemory) {
   EXPECT_GT(with_stats, 1000u);
 }
 
+TEST(TsdfMap, BlocksNeverMoveAndCopiesAreDeep) {
+  TsdfMap map(params(0.02));
+  const int32_t first = map.findOrAllocate(BlockKey(0, 0, 0));
+  VoxelBlock* const address = &map.block(static_cast<size_t>(first));
+  address->geo[5].sdf_m = 0.03f;
+  for (int i = 1; i < 300; ++i) map.findOrAllocate(BlockKey(i, -i, 2 * i));  // 19 chunks
+  EXPECT_EQ(&map.block(static_cast<size_t>(first)), address);
+  EXPECT_EQ(map.blockCount(), 300u);
+  // Memory counts whole chunks: at most one partly used.
+  EXPECT_GE(map.memory().bytes, 300 * sizeof(VoxelBlock));
+  EXPECT_LT(map.memory().bytes, 316 * sizeof(VoxelBlock) + (1u << 20));
+
+  TsdfMap copy = map;
+  address->geo[5].sdf_m = -0.01f;
+  EXPECT_FLOAT_EQ(copy.block(static_cast<size_t>(copy.find(BlockKey(0, 0, 0)))).geo[5].sdf_m, 0.03f);
+  EXPECT_EQ(copy.blockCount(), 300u);
+  EXPECT_EQ(copy.find(BlockKey(299, -299, 598)), map.find(BlockKey(299, -299, 598)));
+  copy = map;
+  EXPECT_FLOAT_EQ(copy.block(static_cast<size_t>(copy.find(BlockKey(0, 0, 0)))).geo[5].sdf_m, -0.01f);
+}
+
 TEST(TsdfPatch, FusesLikeAnObservationAndRejectsBadValues) {
   TsdfMap map(params(0.02));  // mu 8 cm, max weight 64
   TsdfPatch patch;
