@@ -50,6 +50,7 @@ class CameraSourceTest : public ::testing::Test {
     // these tests count every frame: a frontend warm-up (seconds under the
     // sanitizers) would leave the first frames to be dropped by the driver.
     run_options_.warm_up = false;
+    run_options_.background_nice = 0;  // beside other test processes (see test_realtime.cpp)
   }
 
   std::shared_ptr<test::ScriptedDevice> makeDevice(uint32_t format, const std::vector<std::vector<uint8_t>>& frames) {

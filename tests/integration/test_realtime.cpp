@@ -29,6 +29,11 @@ class RealtimeTest : public ::testing::Test {
     T0_ = traj.front().T_world_cam;
     fe_.setInitialPose(T0_);
     options_.status_interval_s = 0;
+    // Background threads at the process's priority: CI runs other test
+    // processes beside this one, and niced workers would starve behind
+    // them (what the nice value is for on a robot, not what these tests
+    // are about).
+    options_.background_nice = 0;
   }
   const alg::PinholeCamera cam_{160, 160, 79.5, 59.5, 160, 120, {0, 0, 0, 0, 0}};
   std::vector<RgbdFrame> frames_;

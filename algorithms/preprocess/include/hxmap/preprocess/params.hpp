@@ -6,7 +6,13 @@ namespace hxmap::alg {
 struct PreprocessParams {
   double min_depth_m = 0.1;        ///< closer depth is invalid
   double max_depth_m = 5.0;        ///< farther depth is invalid
-  int bilateral_radius_px = 2;     ///< 0 disables the edge-preserving denoise
+  /// Edge-preserving denoise at finest_level (0 disables it). A level-1
+  /// pixel already averages 2x2 raw pixels, and radius 1 (9 taps) measured
+  /// the same as 2 (25 taps) at a quarter less preprocessing (6.4 -> 4.7 ms
+  /// per frame on one core): ATE TUM slice /
+  /// synthetic orbit / sweep / Replica slice 0.53 / 0.13 / 0.12 / 0.02 cm
+  /// either way, mesh F1 at 1 cm orbit / sweep 92.4 / 95.8% vs 92.5 / 95.7%.
+  int bilateral_radius_px = 1;
   double bilateral_sigma_px = 1.5; ///< spatial sigma of the denoise
   double bilateral_sigma_depth_factor = 2.5;  ///< range sigma = factor * sensor sigma(z)
   /// Pyramid level at which filtering, normals and confidence start; finer
