@@ -307,6 +307,13 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   return result;
 }
 
+int modelLevel(const TrackingParams& params, int width) {
+  if (params.model_level >= 0) return params.model_level;
+  int level = 1;
+  while ((width >> (level + 1)) >= 160) ++level;
+  return level;
+}
+
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
                    int64_t now_ns, const TrackingParams& params) {
   const Eigen::Isometry3d rel = T_last_kf.inverse() * T_now;

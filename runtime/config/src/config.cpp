@@ -94,7 +94,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("iterations_finest", k.iterations_finest, 0, 100);
   v.integer("iterations_middle", k.iterations_middle, 0, 100);
   v.integer("iterations_coarsest", k.iterations_coarsest, 0, 100);
-  v.integer("model_level", k.model_level, 0, 4);
+  v.integer("model_level", k.model_level, -1, 4);
   v.integer("icp_stride_finest", k.icp_stride_finest, 1, 16);
   v.number("max_correspondence_distance_m", k.max_correspondence_distance_m, 0.001, 2);
   v.number("max_normal_angle_deg", k.max_normal_angle_deg, 1, 90);

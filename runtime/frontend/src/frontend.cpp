@@ -431,7 +431,8 @@ void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   // The model is raycast at pyramid level `model_level` (the fused frame's
   // depth at that level as the hint); finer tracking levels associate into
   // that same view, coarser ones into subsampled copies.
-  const int model_level = std::clamp(params_.tracking.model_level, 0, static_cast<int>(fused.levels.size()) - 1);
+  const int model_level =
+      std::clamp(alg::modelLevel(params_.tracking, camera_.width), 0, static_cast<int>(fused.levels.size()) - 1);
   cv::Mat hint = model_level == 0 ? fused.depth_m : fused.levels[model_level].depth;
   // Where the frame has no depth, the previous model view (one frame of
   // motion away) predicts the surface: those rays then bracket it directly

@@ -6,13 +6,14 @@ namespace hxmap::alg {
 struct PreprocessParams {
   double min_depth_m = 0.1;        ///< closer depth is invalid
   double max_depth_m = 5.0;        ///< farther depth is invalid
-  /// Edge-preserving denoise at finest_level (0 disables it). A level-1
-  /// pixel already averages 2x2 raw pixels, and radius 1 (9 taps) measured
-  /// the same as 2 (25 taps) at a quarter less preprocessing (6.4 -> 4.7 ms
-  /// per frame on one core): ATE TUM slice /
-  /// synthetic orbit / sweep / Replica slice 0.53 / 0.13 / 0.12 / 0.02 cm
-  /// either way, mesh F1 at 1 cm orbit / sweep 92.4 / 95.8% vs 92.5 / 95.7%.
-  int bilateral_radius_px = 1;
+  /// Edge-preserving denoise at finest_level (0 disables it). Radius 1 (9
+  /// taps instead of 25) measured the same ATE and mesh at 640x480 (TUM
+  /// slice / synthetic orbit / sweep / Replica slice 0.53 / 0.13 / 0.12 /
+  /// 0.02 cm; mesh F1 at 1 cm 92.4 / 95.8% vs 92.5 / 95.7%) at a quarter less
+  /// preprocessing (6.4 -> 4.7 ms on one core), but on the 320x240 drift
+  /// test of pose feedback the window then removed 18% of the drift instead
+  /// of 26% (tests/integration/test_pose_feedback.cpp): kept at 2.
+  int bilateral_radius_px = 2;
   double bilateral_sigma_px = 1.5; ///< spatial sigma of the denoise
   double bilateral_sigma_depth_factor = 2.5;  ///< range sigma = factor * sensor sigma(z)
   /// Pyramid level at which filtering, normals and confidence start; finer

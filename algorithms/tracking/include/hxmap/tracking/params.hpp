@@ -16,10 +16,14 @@ struct TrackingParams {
   int iterations_middle = 4;
   int iterations_coarsest = 8;  ///< the third level and coarser
   /// Pyramid level at which the model is raycast for tracking; finer levels
-  /// associate into it. 1 (half resolution) costs a quarter of the rays and
-  /// measured the same accuracy as 0 (ATE orbit/sweep/TUM 0.15/0.14/0.53 cm
-  /// vs 0.14/0.13/0.53), since level-0 terms use every 2nd pixel anyway.
-  int model_level = 1;
+  /// associate into it (projectively, nearest model pixel; the residual is
+  /// to the model's plane there). -1 = auto: the level at which the image
+  /// is 160 to 319 pixels wide, at least 1 (see modelLevel). At 640x480 the
+  /// model at level 2 (160x120) measured the same ATE as level 1 (TUM slice
+  /// / synthetic orbit / sweep / Replica slice 0.53 / 0.13 / 0.12 / 0.02 cm)
+  /// at a quarter of the raycast (11.6 -> 3.2 ms per frame on one core);
+  /// level 1 had measured the same as level 0 earlier.
+  int model_level = -1;
   /// Pixel stride of point-to-plane terms at the finest tracking level
   /// (half resolution by default). 2 saves a third of the tracking time but
   /// measured less accurate on synthetic data (ATE TUM / orbit / sweep /
