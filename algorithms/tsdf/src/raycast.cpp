@@ -124,8 +124,8 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         const float predicted = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
         // A pixel without a prediction first tries its left neighbour's hit
         // of this cast as one: holes in the prediction that the map can
-        // fill grow in from their edges at two samples per pixel instead of
-        // a march each. When that fails the pixel is treated as its own
+        // fill grow in from their edges at three samples per pixel instead
+        // of a march each. When that fails the pixel is treated as its own
         // prediction says (march from the tile bound, or not cast).
         float zh = predicted;
         const bool from_neighbour = predicted <= 0.0f && u > 0 && drow[u - 1] > 0.0f;

@@ -51,11 +51,11 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
                             const PhotometricReference& reference = {},
                             const ParallelFor& parallel = serialFor);
 
-/// Keyframe test: motion or time since the last keyframe above thresholds.
 /// The pyramid level the model is raycast at for an image `width` pixels
 /// wide (params.model_level, or the automatic choice when it is negative).
 int modelLevel(const TrackingParams& params, int width);
 
+/// Keyframe test: motion or time since the last keyframe above thresholds.
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
                    int64_t now_ns, const TrackingParams& params);
 
