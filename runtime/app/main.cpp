@@ -1,23 +1,13 @@
 // hxmap: real-time dense RGB-D mapping. See README.md for the commands.
-#include <malloc.h>
-
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include "commands.hpp"
+#include "hxmap/frontend/frontend.hpp"
 
 int main(int argc, char** argv) {
-  // DESIGN: image buffers (about 1 MiB each, a dozen per frame) and map
-  // chunks come from the heap and stay there between frames. By default
-  // glibc maps such buffers fresh from the kernel until its adaptive
-  // threshold has caught up, and trims heaps back, so the first frames paid
-  // a page fault per 4 KiB touched: preprocessing took 27-35 ms for frames
-  // 0-3 instead of 5 ms. With memory kept, Frontend::warmUp (run on the
-  // frontend's own thread, whose allocator arena it grows) makes the first
-  // live frame as fast as the rest.
-  mallopt(M_MMAP_THRESHOLD, 64 << 20);
-  mallopt(M_TRIM_THRESHOLD, 512 << 20);
+  hxmap::rt::keepHeapBetweenFrames();
   spdlog::set_default_logger(spdlog::stderr_color_mt("hxmap"));
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
 

@@ -17,7 +17,6 @@
 #include <string>
 #include <vector>
 
-#include <malloc.h>
 #include <unistd.h>
 
 #include <opencv2/core.hpp>
@@ -57,9 +56,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   cv::setNumThreads(0);
-  // The allocator as hxmap's main sets it (heap memory kept between frames).
-  mallopt(M_MMAP_THRESHOLD, 64 << 20);
-  mallopt(M_TRIM_THRESHOLD, 512 << 20);
+  rt::keepHeapBetweenFrames();  // as hxmap's main does
   const bool frontend_only = argc > 3 && std::string(argv[3]) == "frontend";
   const std::string dir = argc > 1 ? argv[1] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
   const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 3;

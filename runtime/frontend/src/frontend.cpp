@@ -4,6 +4,8 @@
 #include <chrono>
 #include <mutex>
 
+#include <malloc.h>
+
 #include <fmt/format.h>
 #include <opencv2/imgproc.hpp>
 
@@ -28,6 +30,11 @@ class StageTimer {
   std::chrono::steady_clock::time_point start_;
 };
 }  // namespace
+
+void keepHeapBetweenFrames() {
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 512 << 20);
+}
 
 Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel)
     : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf), quality_(params.quality) {}

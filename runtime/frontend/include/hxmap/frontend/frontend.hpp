@@ -129,6 +129,17 @@ struct FeedbackCounters {
   double reintegrate_ms = 0;       ///< total
 };
 
+/// Process-wide: large buffers come from the heap and heap memory is kept
+/// between frames (glibc mmap and trim thresholds raised). DESIGN: image
+/// buffers (about 1 MiB each, a dozen per frame) were otherwise mapped
+/// fresh from the kernel until glibc's adaptive threshold caught up, and
+/// heaps were trimmed back, so the first frames paid a page fault per 4 KiB
+/// touched: preprocessing took 27-35 ms for frames 0-3 instead of 5 ms.
+/// With memory kept, Frontend::warmUp (run on the frontend's own thread,
+/// whose allocator arena it grows) makes the first live frame as fast as
+/// the rest. Call once at start-up.
+void keepHeapBetweenFrames();
+
 class Frontend {
  public:
   Frontend(const alg::PinholeCamera& camera, const FrontendParams& params,

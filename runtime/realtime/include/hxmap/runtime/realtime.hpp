@@ -89,9 +89,10 @@ struct RealtimeOptions {
   /// (Linux: per thread; 0 = unchanged). DESIGN: the scheduler admits
   /// background slices only into predicted slack, but a slice already
   /// running when a frame arrives competes with the frontend for the
-  /// cores; at the same priority the kernel splits them evenly and the
-  /// frontend overran its deadline (4 misses in 35 frames at 30 FPS on
-  /// two cores). Niced, the kernel hands the frontend the core first.
+  /// cores; niced, the kernel hands the frontend the core first. A
+  /// safeguard: on the TUM slice at 30 FPS nice 10 and 0 measured the same
+  /// misses (the misses then were the cold start, see Frontend::warmUp).
+  /// Under other load (other processes at nice 0) niced workers may starve.
   int background_nice = 10;
   /// Run Frontend::warmUp on the frontend thread before the sensor thread
   /// reads the first frame.
