@@ -115,6 +115,11 @@ double depthResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T, doubl
   return observed_depth - hit.z;
 }
 
+double incidenceCosine(const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v, const SurfaceHit& hit) {
+  const Eigen::Vector3d q = pixelRay(cam, u, v);
+  return std::abs((T.linear().transpose() * hit.normal_world).dot(q)) / q.norm();
+}
+
 double photoResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v,
                      double observed_intensity, double gx, double gy, const SurfaceHit& hit, Vector6d& J) {
   (void)u;

@@ -115,7 +115,15 @@ PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3
     // The channels at one hit: depth, and photometric where textured.
     auto channel = [&](const SurfaceHit& hit, double lambda_photo, double lambda_depth, int& n_photo, int& n_depth) {
       if (lambda_depth > 0) {
-        const double r = depthResidual(cam, T, u, v, D, hit, J);
+        double r = depthResidual(cam, T, u, v, D, hit, J);
+        if (p.depth_point_to_plane) {
+          // The along-ray residual times the incidence cosine (held fixed
+          // in the step, as an IRLS weight): the distance to the map's
+          // tangent plane.
+          const double c = incidenceCosine(cam, T, u, v, hit);
+          r *= c;
+          J *= c;
+        }
         if (std::abs(r) <= p.depth_gate_m) {
           accumulate(r, p.depth_sigma_m, lambda_depth, J, L.H, L.b, L.cost);
           ++n_depth;

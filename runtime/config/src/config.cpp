@@ -197,6 +197,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("depth_sigma_m", f.depth_sigma_m, 1e-5, 1);
   v.number("photo_sigma", f.photo_sigma, 1e-4, 1);
   v.number("depth_gate_m", f.depth_gate_m, 1e-4, 10);
+  v.boolean("depth_point_to_plane", f.depth_point_to_plane);
   v.number("photo_gate", f.photo_gate, 1e-3, 1);
   v.number("photo_blur_px", f.photo_blur_px, 0, 10);
   v.number("edge_depth_ratio", f.edge_depth_ratio, 1e-4, 1);

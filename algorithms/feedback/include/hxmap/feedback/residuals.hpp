@@ -67,6 +67,10 @@ bool castImplicit(const ImplicitSurface& surface, const PinholeCamera& cam, cons
 double depthResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
                      double observed_depth, const SurfaceHit& hit, Vector6d& J);
 
+/// |cos| of the angle between pixel (u, v)'s ray and the hit's normal.
+double incidenceCosine(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
+                       const SurfaceHit& hit);
+
 /// Photometric residual I(p) - C^ and its Jacobian; (gx, gy) is the
 /// observed intensity's gradient at p per pixel.
 double photoResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
