@@ -262,6 +262,8 @@ void FeedbackTally::add(const alg::SolveReport& report, double ms) {
   solve_ms.push_back(ms);
   cost_before += report.base_cost_before;
   cost_after += report.base_cost_after;
+  explicit_residuals += static_cast<uint64_t>(report.after.photo_explicit + report.after.depth_explicit);
+  implicit_residuals += static_cast<uint64_t>(report.after.photo_implicit + report.after.depth_implicit);
 }
 
 std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackParams& p) const {
@@ -271,10 +273,12 @@ std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackPa
   auto at = [&](double q) { return v.empty() ? 0.0 : v[static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5)]; };
   return fmt::format(
       "pose feedback: window {}, {} windows solved ({} cut short), solve median {:.1f} ms, p90 {:.1f} ms; cost "
-      "{:.4g} -> {:.4g} (summed)\n"
+      "{:.4g} -> {:.4g} (summed); residuals per window {:.0f} explicit, {:.0f} implicit (refined regions)\n"
       "  {} keyframe corrections sent, {} applied ({} too late); {} keyframes re-integrated "
       "({:.1f} ms each), {} waiting\n",
-      p.window, windows, stopped, at(0.5), at(0.9), cost_before, cost_after, corrections_sent, c.corrections,
+      p.window, windows, stopped, at(0.5), at(0.9), cost_before, cost_after,
+      static_cast<double>(explicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)),
+      static_cast<double>(implicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)), corrections_sent, c.corrections,
       c.corrections_late, c.reintegrations, c.reintegrations ? c.reintegrate_ms / static_cast<double>(c.reintegrations) : 0.0,
       c.reintegrations_pending);
 }
@@ -314,7 +318,9 @@ std::vector<KeyframeCorrection> FeedbackSolver::solve(const alg::FeedbackMaps& m
 bool SerialFeedback::step(Frontend& frontend) {
   std::vector<alg::WindowKeyframe> kfs = frontend.takeFeedbackKeyframes();
   if (kfs.empty()) return false;
-  const alg::FeedbackMaps maps{&frontend.map(), {}, nullptr};
+  const auto surfaces = frontend.implicitSurfaces();
+  alg::FeedbackMaps maps{&frontend.map(), {}, nullptr};
+  for (const auto& s : surfaces) maps.implicit.push_back(s.get());
   for (auto& kf : kfs) solver_.add(std::move(kf), maps);
   for (const KeyframeCorrection& c : solver_.solve(maps)) frontend.applyKeyframeCorrection(c);
   frontend.reintegratePending();
@@ -417,6 +423,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   }
   const auto t2 = Clock::now();
   out.result = refiner.result();
+  if (refiner.iterations() > 0) out.surface = std::make_shared<alg::FieldSurface>(refiner.field());
   const auto t3 = Clock::now();
   out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);
   return out;
@@ -424,8 +431,22 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
 
 alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
   for (const auto& [key, sigma] : outcome.result.neural_sigma) quality_.setNeuralSigma(key, sigma);
+  if (outcome.surface && outcome.surface->sampledNodes() > 0) {
+    const std::lock_guard lock(surfaces_mutex_);
+    const Eigen::AlignedBox3f& box = outcome.surface->box();
+    surfaces_.erase(std::remove_if(surfaces_.begin(), surfaces_.end(),
+                                   [&](const auto& s) { return box.contains(s->box().center()); }),
+                    surfaces_.end());
+    surfaces_.push_front(outcome.surface);
+    if (surfaces_.size() > kMaxImplicitSurfaces) surfaces_.pop_back();
+  }
   const std::unique_lock lock(map_mutex_);
   return alg::applyPatch(map_, outcome.result.patch);
+}
+
+std::vector<std::shared_ptr<const alg::ImplicitSurface>> Frontend::implicitSurfaces() const {
+  const std::lock_guard lock(surfaces_mutex_);
+  return {surfaces_.begin(), surfaces_.end()};
 }
 
 alg::PatchStats Frontend::applyPatch(const alg::TsdfPatch& patch) {

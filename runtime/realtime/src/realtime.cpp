@@ -269,7 +269,9 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     nameThisThread("hx-feedback");
     niceThisThread("hx-feedback", options.background_nice);
     FeedbackSolver solver(feedback_params);
-    const alg::FeedbackMaps maps{&frontend.map(), {}, &frontend.mapMutex()};
+    alg::FeedbackMaps maps{&frontend.map(), {}, &frontend.mapMutex()};
+    // The refined regions' fields (shared: a field lives while a solve uses it).
+    std::vector<std::shared_ptr<const alg::ImplicitSurface>> surfaces;
     const int max_effort = std::max(1, sp.max_feedback_effort);
     alg::WindowKeyframe kf;
     while (!workers_stop.load()) {
@@ -320,6 +322,9 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         }
         return true;
       };
+      surfaces = frontend.implicitSurfaces();
+      maps.implicit.clear();
+      for (const auto& sf : surfaces) maps.implicit.push_back(sf.get());
       const std::vector<KeyframeCorrection> out = solver.solve(maps, stopSolve, iterations);
       endSlice();
       if (shed) {
@@ -371,6 +376,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       } else {
         outcome.out_of_time = !refiner->finished();
         outcome.result = refiner->result();
+        if (refiner->iterations() > 0) outcome.surface = std::make_shared<alg::FieldSurface>(refiner->field());
         phase = kWriteBack;
       }
       const int64_t s1 = now_ns();

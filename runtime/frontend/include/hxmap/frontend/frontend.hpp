@@ -6,6 +6,7 @@
 #include <deque>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <shared_mutex>
 #include <unordered_map>
 #include <string>
@@ -13,6 +14,7 @@
 
 #include "hxmap/core/frame.hpp"
 #include "hxmap/core/parallel.hpp"
+#include "hxmap/feedback/field_surface.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
 #include "hxmap/implicit/refine.hpp"
@@ -78,6 +80,9 @@ struct RefineOutcome {
   double train_ms = 0;   ///< the iterations
   double result_ms = 0;  ///< write-back and sigma_Neural
   bool out_of_time = false;  ///< stopped by params.time_budget_ms
+  /// The trained field as the pose feedback's implicit surface (sampled
+  /// once, timed in result_ms); null when the job had nothing to learn.
+  std::shared_ptr<const alg::FieldSurface> surface;
 };
 
 /// Runs a job to its end on the calling thread, within the job's iteration
@@ -194,6 +199,11 @@ class Frontend {
   /// Between frames: fuse a job's write-back and hand its sigma_Neural to
   /// the quality map. Returns the patch statistics.
   alg::PatchStats applyRefinement(const RefineOutcome& outcome);
+  /// The refined regions' fields for the pose feedback's implicit channels
+  /// (the newest kMaxImplicitSurfaces; a field replaces older ones whose
+  /// box center it contains). Safe from any thread.
+  std::vector<std::shared_ptr<const alg::ImplicitSurface>> implicitSurfaces() const;
+  static constexpr size_t kMaxImplicitSurfaces = 32;
   size_t refineJobsMade() const { return jobs_made_; }
   size_t refineJobsDropped() const { return jobs_dropped_; }
 
@@ -258,6 +268,8 @@ class Frontend {
   std::deque<uint32_t> reintegrate_queue_;
   FeedbackCounters feedback_counters_;
   mutable std::shared_mutex map_mutex_;
+  mutable std::mutex surfaces_mutex_;
+  std::deque<std::shared_ptr<const alg::FieldSurface>> surfaces_;  ///< newest first
 };
 
 /// Pose feedback's figures for a run's summary.
@@ -266,6 +278,9 @@ struct FeedbackTally {
   uint64_t corrections_sent = 0;      ///< keyframe estimates that stood out of the solve's noise
   std::vector<double> solve_ms;       ///< per solved window
   double cost_before = 0, cost_after = 0;  ///< summed over windows
+  /// Residuals at the solution, summed over windows: explicit (TSDF) and
+  /// implicit (refined regions' fields), photometric + depth.
+  uint64_t explicit_residuals = 0, implicit_residuals = 0;
   void add(const alg::SolveReport& report, double ms);
   /// Lines for the run summary (with the frontend's correction counters).
   std::string text(const FeedbackCounters& counters, const alg::FeedbackParams& params) const;
