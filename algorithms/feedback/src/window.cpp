@@ -86,13 +86,41 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
     for (size_t k = 0; k < want; ++k) slot.base.push_back(valid[static_cast<size_t>((static_cast<double>(k) + 0.5) * step)]);
   }
   slot.extra.clear();
+  slot.base_samples.clear();
+  slot.extra_samples.clear();
+  for (const Eigen::Vector2i& px : slot.base) {
+    const int u = px.x(), v = px.y();
+    slot.base_samples.push_back({u, v, kf.depth.at<float>(v, u), I.at<float>(v, u), slot.grad_x.at<float>(v, u),
+                                 slot.grad_y.at<float>(v, u)});
+  }
+}
+
+std::vector<PoseWindow::PixelSample> PoseWindow::gather(size_t j, const std::vector<Eigen::Vector2i>& pixels) const {
+  std::vector<PixelSample> out;
+  out.reserve(pixels.size());
+  const WindowKeyframe& kf = keyframes_[j];
+  const Slot& s = slots_[j];
+  if (kf.depth.empty() || s.intensity.empty()) return out;
+  for (const Eigen::Vector2i& px : pixels) {
+    const int u = px.x(), v = px.y();
+    if (u < 0 || v < 0 || u >= kf.depth.cols || v >= kf.depth.rows) continue;
+    out.push_back({u, v, kf.depth.at<float>(v, u), s.intensity.at<float>(v, u), s.grad_x.at<float>(v, u),
+                   s.grad_y.at<float>(v, u)});
+  }
+  return out;
 }
 
 PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
                                                 const std::vector<Eigen::Vector2i>& pixels,
                                                 std::vector<PixelResult>* out) const {
+  return linearizeSamples(j, T, maps, gather(j, pixels), out);
+}
+
+PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+                                                       const std::vector<PixelSample>& samples,
+                                                       std::vector<PixelResult>* out) const {
   Linearization L;
-  if (out) out->assign(pixels.size(), PixelResult{});
+  if (out) out->assign(samples.size(), PixelResult{});
   const WindowKeyframe& kf = keyframes_[j];
   if (!maps.tsdf || kf.intensity.empty()) return L;
   std::shared_lock<std::shared_mutex> lock;
@@ -100,17 +128,16 @@ PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3
   BlockCache cache(*maps.tsdf);
   const PinholeCamera& cam = kf.camera;
   const FeedbackParams& p = params_;
-  const cv::Mat& i_img = slots_[j].intensity;
-  const cv::Mat& gx_img = slots_[j].grad_x;
-  const cv::Mat& gy_img = slots_[j].grad_y;
+  const double min_gradient2 = p.min_gradient * p.min_gradient;
   Vector6d J;
-  for (size_t i = 0; i < pixels.size(); ++i) {
-    const int u = pixels[i].x(), v = pixels[i].y();
-    const double D = kf.depth.at<float>(v, u);
+  for (size_t i = 0; i < samples.size(); ++i) {
+    const PixelSample& px = samples[i];
+    const int u = px.u, v = px.v;
+    const double D = px.depth;
     if (!(D > 0)) continue;
-    const double I = i_img.at<float>(v, u);
-    const double gx = gx_img.at<float>(v, u), gy = gy_img.at<float>(v, u);
-    const bool textured = std::hypot(gx, gy) >= p.min_gradient;
+    const double I = px.intensity;
+    const double gx = px.gx, gy = px.gy;
+    const bool textured = gx * gx + gy * gy >= min_gradient2;
     float worst = 0;
     // The channels at one hit: depth, and photometric where textured.
     auto channel = [&](const SurfaceHit& hit, double lambda_photo, double lambda_depth, int& n_photo, int& n_depth) {
@@ -209,7 +236,7 @@ void PoseWindow::marginalizeOldest(const FeedbackMaps& maps) {
     // factor, its prior and the relative factor to the next keyframe.
     Eigen::Matrix<double, 12, 12> H = Eigen::Matrix<double, 12, 12>::Zero();
     Eigen::Matrix<double, 12, 1> b = Eigen::Matrix<double, 12, 1>::Zero();
-    const Linearization lo = linearize(0, keyframes_[0].T_world_cam, maps, slots_[0].base);
+    const Linearization lo = linearizeSamples(0, keyframes_[0].T_world_cam, maps, slots_[0].base_samples, nullptr);
     H.topLeftCorner<6, 6>() += lo.H;
     b.head<6>() += lo.b;
     if (has_prior_) {
@@ -269,6 +296,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   for (size_t j = 0; j < n; ++j) {
     slots_[j].extra.clear();
     explore(j, slots_[j].extra);
+    slots_[j].extra_samples = gather(j, slots_[j].extra);
   }
 
   struct KfEval {
@@ -276,11 +304,11 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::vector<PixelResult> extra_pixels;
   };
   auto evalBase = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.base = linearize(j, T, maps, slots_[j].base);
+    e.base = linearizeSamples(j, T, maps, slots_[j].base_samples, nullptr);
     ++rep.evaluations;
   };
   auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.extra = linearize(j, T, maps, slots_[j].extra, &e.extra_pixels);
+    e.extra = linearizeSamples(j, T, maps, slots_[j].extra_samples, &e.extra_pixels);
   };
   // The whole objective and its normal equations at poses x.
   auto assemble = [&](const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
@@ -380,17 +408,19 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       // explore set; the new extras evaluated at the accepted poses.
       for (size_t j = 0; j < n && !halted(); ++j) {
         Slot& s = slots_[j];
-        std::vector<size_t> order(s.extra.size());
+        std::vector<size_t> order(s.extra_samples.size());
         for (size_t k = 0; k < order.size(); ++k) order[k] = k;
         const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, p.top_pixels)));
         std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
                           [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
         std::vector<Eigen::Vector2i> next;
         for (size_t k = 0; k < keep; ++k) {
-          if (ev[j].extra_pixels[order[k]].residual > 0) next.push_back(s.extra[order[k]]);
+          const PixelSample& px = s.extra_samples[order[k]];
+          if (ev[j].extra_pixels[order[k]].residual > 0) next.emplace_back(px.u, px.v);
         }
         s.extra = std::move(next);
         explore(j, s.extra);
+        s.extra_samples = gather(j, s.extra);
         evalExtra(j, x[j], ev[j]);
       }
       if (rep.stopped) break;  // x is accepted; the extras may be stale for the report only

@@ -52,9 +52,10 @@ inline Eigen::Vector3d pixelRay(const PinholeCamera& cam, double u, double v) {
 }
 
 /// The TSDF surface along pixel (u, v)'s ray from T near depth z_hint:
-/// bracketed by trilinear samples around the hint (or marched within a
-/// truncation band of it), refined by secants; normal from the trilinear
-/// gradient. False without a crossing, or at a more grazing angle than
+/// within a voxel of the hint, one Newton step on the trilinear field there
+/// (its gradient is the normal); else bracketed by trilinear samples around
+/// the hint (or marched within a truncation band of it), refined by
+/// secants, normal from the trilinear gradient. False without a crossing, or at a more grazing angle than
 /// max_incidence_deg.
 bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam,
                   double u, double v, double z_hint, double max_incidence_deg, SurfaceHit& hit);
