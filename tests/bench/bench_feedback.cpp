@@ -5,6 +5,7 @@
 // perturbed as tracking drift would leave them. One core (no parallel-for).
 //
 // Usage: bench_feedback [window N] [repetitions] [drift scale: 1 as above, 0 = start at the true poses]
+//                       [LM iterations: default FeedbackParams::iterations]
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -74,6 +75,7 @@ int main(int argc, char** argv) {
   }
   FeedbackParams p;
   p.window = n;
+  if (argc > 4) p.iterations = std::max(1, std::atoi(argv[4]));
   std::vector<double> ms, per_iter;
   SolveReport last;
   std::vector<WindowKeyframe> solved;

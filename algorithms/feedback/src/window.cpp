@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <mutex>
 #include <shared_mutex>
 
@@ -116,11 +117,71 @@ PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3
   return linearizeSamples(j, T, maps, gather(j, pixels), out);
 }
 
+namespace {
+
+// One hit's channels into L: depth (point-to-plane when asked), and
+// photometric where the image is textured. `worst` gets the largest
+// weighted |r|.
+struct ChannelWeights {
+  double photo = 0, depth = 0;
+};
+void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v,
+                 double D, double I, double gx, double gy, const SurfaceHit& hit, double cosine, ChannelWeights lambda,
+                 int& n_photo, int& n_depth, PoseWindow::Linearization& L, float& worst) {
+  Vector6d J;
+  if (lambda.depth > 0) {
+    double r = depthResidual(cam, T, u, v, D, hit, J);
+    if (p.depth_point_to_plane) {
+      // The along-ray residual times the incidence cosine (held fixed in
+      // the step, as an IRLS weight): the distance to the map's tangent plane.
+      r *= cosine;
+      J *= cosine;
+    }
+    if (std::abs(r) <= p.depth_gate_m) {
+      accumulate(r, p.depth_sigma_m, lambda.depth, J, L.H, L.b, L.cost);
+      ++n_depth;
+      worst = std::max(worst, static_cast<float>(std::sqrt(lambda.depth) * std::abs(r) / p.depth_sigma_m));
+    }
+  }
+  if (lambda.photo > 0 && gx * gx + gy * gy >= p.min_gradient * p.min_gradient) {
+    const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
+    if (std::abs(r) <= p.photo_gate) {
+      accumulate(r, p.photo_sigma, lambda.photo, J, L.H, L.b, L.cost);
+      ++n_photo;
+      worst = std::max(worst, static_cast<float>(std::sqrt(lambda.photo) * std::abs(r) / p.photo_sigma));
+    }
+  }
+}
+
+// Bilinear sample of a CV_32F image; false outside its interior.
+bool bilinear(const cv::Mat& img, double x, double y, double& out) {
+  if (!(x >= 0 && y >= 0 && x < img.cols - 1 && y < img.rows - 1)) return false;
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const double fx = x - x0, fy = y - y0;
+  const float* r0 = img.ptr<float>(y0) + x0;
+  const float* r1 = img.ptr<float>(y0 + 1) + x0;
+  out = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+  return true;
+}
+
+}  // namespace
+
+PoseWindow::Linearization PoseWindow::linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast,
+                                                        const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+                                                        const std::vector<Eigen::Vector2i>& pixels) const {
+  const std::vector<PixelSample> samples = gather(j, pixels);
+  std::vector<CachedHit> hits;
+  linearizeSamples(j, T_cast, maps, samples, nullptr, &hits);
+  return linearizeCached(j, T, samples, hits, nullptr);
+}
+
 PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
                                                        const std::vector<PixelSample>& samples,
-                                                       std::vector<PixelResult>* out) const {
+                                                       std::vector<PixelResult>* out,
+                                                       std::vector<CachedHit>* hits) const {
   Linearization L;
   if (out) out->assign(samples.size(), PixelResult{});
+  if (hits) hits->clear();
   const WindowKeyframe& kf = keyframes_[j];
   if (!maps.tsdf || kf.intensity.empty()) return L;
   std::shared_lock<std::shared_mutex> lock;
@@ -128,60 +189,91 @@ PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Is
   BlockCache cache(*maps.tsdf);
   const PinholeCamera& cam = kf.camera;
   const FeedbackParams& p = params_;
-  const double min_gradient2 = p.min_gradient * p.min_gradient;
-  Vector6d J;
+  const ChannelWeights explicit_w{p.lambda_photo_explicit, p.lambda_depth_explicit};
+  const ChannelWeights implicit_w{p.lambda_photo_implicit, p.lambda_depth_implicit};
   for (size_t i = 0; i < samples.size(); ++i) {
     const PixelSample& px = samples[i];
-    const int u = px.u, v = px.v;
-    const double D = px.depth;
+    const double u = px.u, v = px.v, D = px.depth;
     if (!(D > 0)) continue;
-    const double I = px.intensity;
-    const double gx = px.gx, gy = px.gy;
-    const bool textured = gx * gx + gy * gy >= min_gradient2;
     float worst = 0;
-    // The channels at one hit: depth, and photometric where textured.
-    auto channel = [&](const SurfaceHit& hit, double lambda_photo, double lambda_depth, int& n_photo, int& n_depth) {
-      if (lambda_depth > 0) {
-        double r = depthResidual(cam, T, u, v, D, hit, J);
-        if (p.depth_point_to_plane) {
-          // The along-ray residual times the incidence cosine (held fixed
-          // in the step, as an IRLS weight): the distance to the map's
-          // tangent plane.
-          const double c = incidenceCosine(cam, T, u, v, hit);
-          r *= c;
-          J *= c;
-        }
-        if (std::abs(r) <= p.depth_gate_m) {
-          accumulate(r, p.depth_sigma_m, lambda_depth, J, L.H, L.b, L.cost);
-          ++n_depth;
-          worst = std::max(worst, static_cast<float>(std::sqrt(lambda_depth) * std::abs(r) / p.depth_sigma_m));
-        }
-      }
-      if (lambda_photo > 0 && textured) {
-        const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
-        if (std::abs(r) <= p.photo_gate) {
-          accumulate(r, p.photo_sigma, lambda_photo, J, L.H, L.b, L.cost);
-          ++n_photo;
-          worst = std::max(worst, static_cast<float>(std::sqrt(lambda_photo) * std::abs(r) / p.photo_sigma));
-        }
+    auto take = [&](const SurfaceHit& hit, bool implicit) {
+      const double c = p.depth_point_to_plane ? incidenceCosine(cam, T, u, v, hit) : 1.0;
+      addChannels(p, cam, T, u, v, D, px.intensity, px.gx, px.gy, hit, c, implicit ? implicit_w : explicit_w,
+                  implicit ? L.counts.photo_implicit : L.counts.photo_explicit,
+                  implicit ? L.counts.depth_implicit : L.counts.depth_explicit, L, worst);
+      if (hits) {
+        hits->push_back({static_cast<uint32_t>(i), implicit, static_cast<float>(c), hit.point_world, hit.normal_world,
+                         hit.intensity});
       }
     };
     SurfaceHit hit;
     if (castExplicit(cache, *maps.tsdf, cam, T, u, v, D, p.max_incidence_deg, hit)) {
-      channel(hit, p.lambda_photo_explicit, p.lambda_depth_explicit, L.counts.photo_explicit, L.counts.depth_explicit);
+      take(hit, false);
       if (out) (*out)[i].hint_z = static_cast<float>(hit.z);
       // Implicit channels where the ray meets a refined region's field.
       for (const ImplicitSurface* surface : maps.implicit) {
         if (!surface || !surface->box().contains(hit.point_world.cast<float>())) continue;
         SurfaceHit ih;
-        if (castImplicit(*surface, cam, T, u, v, hit.z, p.max_incidence_deg, ih)) {
-          channel(ih, p.lambda_photo_implicit, p.lambda_depth_implicit, L.counts.photo_implicit,
-                  L.counts.depth_implicit);
-        }
+        if (castImplicit(*surface, cam, T, u, v, hit.z, p.max_incidence_deg, ih)) take(ih, true);
         break;  // one field per ray
       }
     }
     if (out) (*out)[i].residual = worst;
+  }
+  L.H = L.H.selfadjointView<Eigen::Upper>();
+  L.counts.cost = L.cost;
+  return L;
+}
+
+PoseWindow::Linearization PoseWindow::linearizeCached(size_t j, const Eigen::Isometry3d& T,
+                                                      const std::vector<PixelSample>& samples,
+                                                      const std::vector<CachedHit>& hits,
+                                                      std::vector<PixelResult>* out) const {
+  Linearization L;
+  if (out) out->assign(samples.size(), PixelResult{});
+  const WindowKeyframe& kf = keyframes_[j];
+  const Slot& slot = slots_[j];
+  const PinholeCamera& cam = kf.camera;
+  const FeedbackParams& p = params_;
+  const ChannelWeights explicit_w{p.lambda_photo_explicit, p.lambda_depth_explicit};
+  const ChannelWeights implicit_w{p.lambda_photo_implicit, p.lambda_depth_implicit};
+  const Eigen::Matrix3d Rt = T.linear().transpose();
+  const Eigen::Isometry3d T_inv = T.inverse();
+  const double min_gradient2 = p.min_gradient * p.min_gradient;
+  for (const CachedHit& h : hits) {
+    if (h.sample >= samples.size()) continue;
+    const PixelSample& px = samples[h.sample];
+    const double u = px.u, v = px.v;
+    // The pixel's ray meets the hit's tangent plane at depth z.
+    const Eigen::Vector3d q = pixelRay(cam, u, v);
+    const Eigen::Vector3d n_c = Rt * h.normal_world;
+    const double nq = n_c.dot(q);
+    if (!(std::abs(nq) > 1e-9)) continue;
+    SurfaceHit hit;
+    hit.z = n_c.dot(T_inv * h.point_world) / nq;
+    if (!(hit.z > 0)) continue;
+    hit.point_world = h.point_world;
+    hit.normal_world = h.normal_world;
+    hit.intensity = h.intensity;
+    // The image where the hit point projects now (exactly (u, v) at the pose it was cast from).
+    const Eigen::Vector3d x = T_inv * h.point_world;
+    // Photometric only where the pixel was textured when cast: the image
+    // where the hit projects now (the gradient is the pixel's: it changes
+    // to second order over a step).
+    double I = px.intensity, gx = px.gx, gy = px.gy;
+    if (!(x.z() > 0)) {
+      gx = gy = 0;
+    } else if (gx * gx + gy * gy >= min_gradient2) {
+      const double pu = cam.fx * x.x() / x.z() + cam.cx, pv = cam.fy * x.y() / x.z() + cam.cy;
+      if (std::abs(pu - u) + std::abs(pv - v) > 1e-3 && !bilinear(slot.intensity, pu, pv, I)) {
+        gx = gy = 0;  // left the image: no photometric residual
+      }
+    }
+    float worst = out ? (*out)[h.sample].residual : 0.0f;
+    addChannels(p, cam, T, u, v, px.depth, I, gx, gy, hit, h.cosine, h.implicit ? implicit_w : explicit_w,
+                h.implicit ? L.counts.photo_implicit : L.counts.photo_explicit,
+                h.implicit ? L.counts.depth_implicit : L.counts.depth_explicit, L, worst);
+    if (out) (*out)[h.sample].residual = worst;
   }
   L.H = L.H.selfadjointView<Eigen::Upper>();
   L.counts.cost = L.cost;
@@ -302,13 +394,27 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   struct KfEval {
     Linearization base, extra;
     std::vector<PixelResult> extra_pixels;
+    std::shared_ptr<const std::vector<CachedHit>> base_hits, extra_hits;  // shared by trials
   };
+  // Casting the rays into the maps (the costly evaluation).
   auto evalBase = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.base = linearizeSamples(j, T, maps, slots_[j].base_samples, nullptr);
+    auto hits = std::make_shared<std::vector<CachedHit>>();
+    e.base = linearizeSamples(j, T, maps, slots_[j].base_samples, nullptr, hits.get());
+    e.base_hits = std::move(hits);
     ++rep.evaluations;
   };
   auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
-    e.extra = linearizeSamples(j, T, maps, slots_[j].extra_samples, &e.extra_pixels);
+    auto hits = std::make_shared<std::vector<CachedHit>>();
+    e.extra = linearizeSamples(j, T, maps, slots_[j].extra_samples, &e.extra_pixels, hits.get());
+    e.extra_hits = std::move(hits);
+  };
+  // The same from the hits of `from` (their tangent planes), no casting.
+  auto evalCached = [&](size_t j, const Eigen::Isometry3d& T, const KfEval& from, KfEval& e) {
+    static const std::vector<CachedHit> kNone;
+    e.base = linearizeCached(j, T, slots_[j].base_samples, from.base_hits ? *from.base_hits : kNone, nullptr);
+    e.extra = linearizeCached(j, T, slots_[j].extra_samples, from.extra_hits ? *from.extra_hits : kNone, &e.extra_pixels);
+    e.base_hits = from.base_hits;
+    e.extra_hits = from.extra_hits;
   };
   // The whole objective and its normal equations at poses x.
   auto assemble = [&](const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
@@ -382,6 +488,14 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   rep.after = rep.before;
   rep.base_cost_before = rep.base_cost_after = baseCost(x, ev);
   double mu = p.lm_initial_damping;
+  // DESIGN: a trial step is judged, and the next step linearized, on the
+  // tangent planes of the last cast (the model the Jacobians describe);
+  // the rays are cast again every relinearize_every accepted steps, and the
+  // new explore pixels after each. Casting at every trial was 80% of the
+  // solve; the planes move with the surface to well under a millimetre
+  // for the step sizes of a window (millimetres).
+  int since_cast = 0;
+  const int recast_every = std::max(1, p.relinearize_every);
   for (int it = 0; it < p.iterations && !halted(); ++it) {
     ++rep.iterations;
     Eigen::MatrixXd A = H;
@@ -391,11 +505,7 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::vector<Eigen::Isometry3d> x_try(n);
     for (size_t j = 0; j < n; ++j) x_try[j] = x[j] * expSE3(delta.segment<6>(static_cast<int>(6 * j)));
     std::vector<KfEval> ev_try(n);
-    for (size_t j = 0; j < n && !halted(); ++j) {
-      evalBase(j, x_try[j], ev_try[j]);
-      evalExtra(j, x_try[j], ev_try[j]);
-    }
-    if (rep.stopped) break;  // the trial is incomplete: x stays
+    for (size_t j = 0; j < n; ++j) evalCached(j, x_try[j], ev[j], ev_try[j]);
     ChannelStats st;
     const double cost_try = assemble(x_try, ev_try, nullptr, nullptr, st);
     if (cost_try < cost) {
@@ -403,29 +513,40 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       x = x_try;
       ev = std::move(ev_try);
       mu = std::max(mu / 3.0, 1e-9);
-      // Omega for the next iteration: the base, the largest residuals of
-      // this one (among the extras: the base is there already), a fresh
-      // explore set; the new extras evaluated at the accepted poses.
-      for (size_t j = 0; j < n && !halted(); ++j) {
-        Slot& s = slots_[j];
-        std::vector<size_t> order(s.extra_samples.size());
-        for (size_t k = 0; k < order.size(); ++k) order[k] = k;
-        const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, p.top_pixels)));
-        std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
-                          [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
-        std::vector<Eigen::Vector2i> next;
-        for (size_t k = 0; k < keep; ++k) {
-          const PixelSample& px = s.extra_samples[order[k]];
-          if (ev[j].extra_pixels[order[k]].residual > 0) next.emplace_back(px.u, px.v);
+      const bool converged = delta.lpNorm<Eigen::Infinity>() < 1e-7;
+      if (it + 1 < p.iterations && !converged) {
+        // Omega for the next iteration: the base, the largest residuals of
+        // this one (among the extras: the base is there already), a fresh
+        // explore set; the new extras cast at the accepted poses, and every
+        // recast_every steps the base too.
+        const bool recast = ++since_cast >= recast_every;
+        for (size_t j = 0; j < n && !halted(); ++j) {
+          Slot& s = slots_[j];
+          std::vector<size_t> order(s.extra_samples.size());
+          for (size_t k = 0; k < order.size(); ++k) order[k] = k;
+          const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, p.top_pixels)));
+          std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
+                            [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
+          std::vector<Eigen::Vector2i> next;
+          for (size_t k = 0; k < keep; ++k) {
+            const PixelSample& px = s.extra_samples[order[k]];
+            if (ev[j].extra_pixels[order[k]].residual > 0) next.emplace_back(px.u, px.v);
+          }
+          s.extra = std::move(next);
+          explore(j, s.extra);
+          s.extra_samples = gather(j, s.extra);
+          if (recast) evalBase(j, x[j], ev[j]);
+          evalExtra(j, x[j], ev[j]);
         }
-        s.extra = std::move(next);
-        explore(j, s.extra);
-        s.extra_samples = gather(j, s.extra);
-        evalExtra(j, x[j], ev[j]);
+        if (recast) since_cast = 0;
+        if (rep.stopped) {
+          // x is accepted; some keyframes' sets are mixed: evaluate the
+          // rest from their planes for a consistent report.
+          break;
+        }
       }
-      if (rep.stopped) break;  // x is accepted; the extras may be stale for the report only
       cost = assemble(x, ev, &H, &b, st);
-      if (delta.lpNorm<Eigen::Infinity>() < 1e-7) break;  // converged
+      if (converged) break;
     } else {
       mu *= 4.0;
     }

@@ -4,6 +4,8 @@
 // (a map fused from exact poses).
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include <algorithm>
 #include <cmath>
 
@@ -326,6 +328,40 @@ TEST_F(FeedbackTest, ImplicitChannelsCountOnlyInsideRefinedRegions) {
   // At the true pose both channels agree: the implicit ones add cost but
   // next to nothing to the gradient's direction.
   EXPECT_GT(L_with.cost, L_none.cost);
+}
+
+TEST_F(FeedbackTest, TangentPlanesReproduceTheCastAndFollowItNearby) {
+  // The solve's steps between casts evaluate the residuals on the tangent
+  // planes of the last cast: at the cast's pose exactly the cast, and a
+  // step away (millimetres) close to a fresh cast.
+  FeedbackParams p;
+  p.window = 2;
+  PoseWindow window(p);
+  window.add(keyframe(10), maps());
+  const Eigen::Isometry3d T = window.keyframes()[0].T_world_cam;
+  const std::vector<Eigen::Vector2i>& pixels = window.basePixels(0);
+  const auto cast = window.linearize(0, T, maps(), pixels);
+  const auto planes = window.linearizeOnPlanes(0, T, T, maps(), pixels);
+  ASSERT_GT(cast.counts.depth_explicit, 500);
+  EXPECT_EQ(planes.counts.depth_explicit, cast.counts.depth_explicit);
+  EXPECT_EQ(planes.counts.photo_explicit, cast.counts.photo_explicit);
+  EXPECT_NEAR(planes.cost, cast.cost, 1e-6 * cast.cost);
+  EXPECT_LT((planes.b - cast.b).norm(), 1e-6 * cast.b.norm() + 1e-9);
+  EXPECT_LT((planes.H - cast.H).norm(), 1e-6 * cast.H.norm());
+
+  // 3 mm and 0.2 degrees away: the cost rises on the planes about as it
+  // does for a fresh cast, and the gradients point the same way.
+  Vector6d xi;
+  xi << 0.002, -0.002, 0.002, 0.002, 0.001, -0.002;
+  const Eigen::Isometry3d T2 = T * expSE3(xi);
+  const auto fresh = window.linearize(0, T2, maps(), pixels);
+  const auto moved = window.linearizeOnPlanes(0, T, T2, maps(), pixels);
+  const double rise_fresh = fresh.cost - cast.cost, rise_planes = moved.cost - cast.cost;
+  std::printf("cost at the cast %.1f; 3 mm away: fresh cast %.1f, planes %.1f; gradient cosine %.4f\n", cast.cost,
+              fresh.cost, moved.cost, moved.b.normalized().dot(fresh.b.normalized()));
+  ASSERT_GT(rise_fresh, 0.0);
+  EXPECT_NEAR(rise_planes, rise_fresh, 0.1 * rise_fresh);
+  EXPECT_GT(moved.b.normalized().dot(fresh.b.normalized()), 0.99);
 }
 
 TEST_F(FeedbackTest, MarginalizationIsTheSchurComplementOfTheOldestPose) {

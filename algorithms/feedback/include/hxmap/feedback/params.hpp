@@ -14,6 +14,10 @@ struct FeedbackParams {
   int top_pixels = 256;
   int explore_pixels = 256;
   int iterations = 4;             ///< Levenberg-Marquardt iterations per solve (accepted or not)
+  /// Rays are cast into the maps again after this many accepted steps; in
+  /// between, steps are judged and linearized on the tangent planes of the
+  /// last cast (1: cast at every step).
+  int relinearize_every = 2;
   /// Per-channel weights (eq 13): explicit (TSDF raycast) and implicit
   /// (neural fields inside refined ROIs) photometric and depth.
   double lambda_photo_explicit = 0.5;

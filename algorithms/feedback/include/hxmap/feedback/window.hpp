@@ -121,6 +121,10 @@ class PoseWindow {
   };
   Linearization linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
                           const std::vector<Eigen::Vector2i>& pixels, std::vector<PixelResult>* out = nullptr) const;
+  /// The same factor at pose T from rays cast at T_cast: on the tangent
+  /// planes of those hits, as the solve's steps between casts see it.
+  Linearization linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast, const Eigen::Isometry3d& T,
+                                  const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels) const;
 
  private:
   /// What a residual reads of its pixel, packed. DESIGN: gathered once per
@@ -132,8 +136,24 @@ class PoseWindow {
     float depth = 0, intensity = 0, gx = 0, gy = 0;
   };
   std::vector<PixelSample> gather(size_t j, const std::vector<Eigen::Vector2i>& pixels) const;
+  /// A ray's hit as the linearization saw it: the surface's tangent plane
+  /// (point, normal) and color, the sample it belongs to, the channel.
+  struct CachedHit {
+    uint32_t sample = 0;
+    bool implicit = false;
+    float cosine = 1;  ///< point-to-plane scale, fixed at the linearization
+    Eigen::Vector3d point_world, normal_world;
+    double intensity = 0;
+  };
+  /// Casts the rays (TSDF, and the fields where they exist); `hits` (optional) receives what was hit.
   Linearization linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
-                                 const std::vector<PixelSample>& samples, std::vector<PixelResult>* out) const;
+                                 const std::vector<PixelSample>& samples, std::vector<PixelResult>* out,
+                                 std::vector<CachedHit>* hits = nullptr) const;
+  /// The same factor at pose T from hits cast at a nearby pose: depth to
+  /// their tangent planes, photometric at the hit points' projections
+  /// (the model the Jacobians describe). No map access.
+  Linearization linearizeCached(size_t j, const Eigen::Isometry3d& T, const std::vector<PixelSample>& samples,
+                                const std::vector<CachedHit>& hits, std::vector<PixelResult>* out) const;
   struct Slot {
     std::vector<Eigen::Vector2i> base;   ///< uniform over pixels with depth
     std::vector<Eigen::Vector2i> extra;  ///< top + explore of this iteration
