@@ -80,7 +80,7 @@ std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsPar
 
 /// What the refinement jobs of a run did, for the summary.
 struct RefineTally {
-  std::vector<double> job_ms, iteration_ms, setup_ms;
+  std::vector<double> job_ms, iteration_ms, setup_ms, result_ms;
   size_t jobs = 0, converged = 0, out_of_time = 0, voxels = 0;
   double l1_before = 0, l1_after = 0, memory_mb_max = 0;
   void add(const RefineOutcome& o) {
@@ -91,6 +91,7 @@ struct RefineTally {
     voxels += st.patch_entries;
     job_ms.push_back(o.setup_ms + o.train_ms + o.result_ms);
     setup_ms.push_back(o.setup_ms);
+    result_ms.push_back(o.result_ms);
     if (st.iterations > 0) iteration_ms.push_back(o.train_ms / st.iterations);
     l1_before += st.depth_l1_before_m;
     l1_after += st.depth_l1_after_m;
@@ -452,12 +453,14 @@ int runCommand(const RunOptions& o) {
 #endif
   if (refine.jobs > 0) {
     const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms), ps = percentiles(refine.setup_ms);
+    const auto pr = percentiles(refine.result_ms);
     const double n = static_cast<double>(refine.jobs);
     summary += fmt::format(
         "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back\n"
-        "  per job median {:.0f} ms (setup {:.1f} ms), per iteration median {:.2f} ms, memory per ROI up to {:.1f} MiB\n"
+        "  per job median {:.0f} ms (setup {:.1f} ms, write-back and field sampling {:.1f} ms), per iteration median "
+        "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
         "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
-        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, pj.median, ps.median, pi.median,
+        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, pj.median, ps.median, pr.median, pi.median,
         refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
   } else if (frontend.refineJobsMade() > 0) {
     summary += fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade());
