@@ -121,9 +121,18 @@ void Scheduler::jobSubmitted(JobTicket& job, int64_t now_ns) {
   jobs_submitted_.fetch_add(1, std::memory_order_relaxed);
 }
 
-double Scheduler::predictSliceLocked(const JobTicket& job) const {
+double Scheduler::recentMaxSince(const JobKindCost& k, int64_t since_ns) {
+  double m = 0.0;
+  for (const auto& [t, ms] : k.recent) {
+    if (t >= since_ns) m = std::max(m, ms);
+  }
+  return m;
+}
+
+double Scheduler::predictSliceLocked(const JobTicket& job, int64_t now_ns) const {
+  const int64_t horizon = static_cast<int64_t>(std::max(1, params_.recent_frames)) * period_ns_;
   for (const auto& k : job_costs_) {
-    if (k.kind == job.kind && !k.model.empty()) return std::max(k.model.predict(), 0.0);
+    if (k.kind == job.kind && !k.model.empty()) return std::max({k.model.ewma(), recentMaxSince(k, now_ns - horizon), 0.0});
   }
   return job.slice_estimate_ms;
 }
@@ -132,7 +141,7 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
   double predicted = 0;
   {
     std::lock_guard<std::mutex> lock(job_mutex_);
-    predicted = predictSliceLocked(job);
+    predicted = predictSliceLocked(job, now_ns);
   }
   if (predicted_ms) *predicted_ms = predicted;
   // No prediction of the frontend yet (the first frames): no slack to give.
@@ -155,12 +164,19 @@ void Scheduler::sliceFinished(const JobTicket& job, double ms) {
   std::lock_guard<std::mutex> lock(job_mutex_);
   auto it = std::find_if(job_costs_.begin(), job_costs_.end(), [&](const JobKindCost& k) { return k.kind == job.kind; });
   if (it == job_costs_.end()) {
-    job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames)))});
+    job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames))), {}});
     it = job_costs_.end() - 1;
   }
   it->model.add(ms);
+  // Timed by the slice's start (its admission); older than the horizon out.
+  const int64_t t = std::max<int64_t>(job.last_admitted_ns, 0);
+  const int64_t horizon = static_cast<int64_t>(std::max(1, params_.recent_frames)) * period_ns_;
+  it->recent.erase(std::remove_if(it->recent.begin(), it->recent.end(),
+                                  [&](const auto& e) { return e.first < t - horizon; }),
+                   it->recent.end());
+  it->recent.emplace_back(t, ms);
   // The frontend reads the feedback cost once per frame: published lock-free.
-  if (job.kind == "feedback") feedback_full_ms_.store(it->model.predict(), std::memory_order_relaxed);
+  if (job.kind == "feedback") feedback_full_ms_.store(predictSliceLocked(job, t), std::memory_order_relaxed);
 }
 
 void Scheduler::jobFinished(const JobTicket&) { jobs_completed_.fetch_add(1, std::memory_order_relaxed); }

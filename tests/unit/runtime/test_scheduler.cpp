@@ -111,6 +111,48 @@ TEST(Scheduler, FeedbackEffortDropsUnderTightSlackAndRecovers) {
   EXPECT_EQ(s.feedbackEffort(), 3);
 }
 
+TEST(Scheduler, OneSlowSliceDoesNotStarveItsKindForever) {
+  // Frames of 20 ms at 25 FPS leave about 19 ms of slack. A refine slice
+  // that once took 30 ms (preempted) holds the kind back for the recent
+  // horizon (recent_frames periods), then the EWMA plans again.
+  SchedulerParams p;
+  p.recent_frames = 8;
+  p.shed_after_periods = 1000;  // waiting, not shedding, is under test
+  Scheduler s(p);
+  const int64_t ms = 1'000'000, period = s.periodNs();
+  JobTicket job{"refine", 3.0};
+  s.jobSubmitted(job, 0);
+  int64_t t = 0;
+  auto frame = [&] {
+    s.frameArrived(t);
+    s.frameStarted(t, t);
+    s.frameFinished(t + 20 * ms, {5, 10, 2, 3});
+  };
+  for (int i = 0; i < 4; ++i, t += period) frame();
+  // Between frames: admitted, and slices of 3 ms are measured.
+  for (int i = 0; i < 5; ++i, t += period) {
+    frame();
+    ASSERT_EQ(s.admitSlice(job, t + 21 * ms), Verdict::kRun) << i;
+    s.sliceFinished(job, 3.0);
+  }
+  frame();
+  ASSERT_EQ(s.admitSlice(job, t + 21 * ms), Verdict::kRun);
+  s.sliceFinished(job, 30.0);  // the slow one
+  t += period;
+  int waited = 0, first_run = -1;
+  for (int i = 0; i < 3 * p.recent_frames && first_run < 0; ++i, t += period) {
+    frame();
+    if (s.admitSlice(job, t + 21 * ms) == Verdict::kRun) {
+      first_run = i;
+    } else {
+      ++waited;
+    }
+  }
+  EXPECT_GT(waited, 0) << "right after the slow slice the kind waits";
+  ASSERT_GE(first_run, 0) << "starved: never admitted again";
+  EXPECT_LE(first_run, p.recent_frames + 1);
+}
+
 TEST(Scheduler, AFrameWaitingToStartTakesItsPredictedCostFromTheSlack) {
   Scheduler s;  // 25 FPS, 1 ms margin, 3 warm-up frames
   JobTicket job{"refine", 20.0};
