@@ -138,6 +138,36 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   if (q) {
     EXPECT_GE(q->sigma_neural_m, 0.0f);
   }
+  // The job's field joins the pose feedback's implicit channels: a window
+  // of the keyframes that saw the ROI gets implicit residuals inside it.
+  ASSERT_TRUE(o.surface);
+  EXPECT_GT(o.surface->sampledNodes(), 0u);
+  const auto surfaces = fe.implicitSurfaces();
+  ASSERT_EQ(surfaces.size(), 1u);
+  EXPECT_EQ(surfaces.front().get(), o.surface.get());
+  alg::FeedbackParams fp;
+  fp.window = 4;
+  alg::PoseWindow window(fp);
+  alg::FeedbackMaps maps{&fe.map(), {surfaces.front().get()}, nullptr};
+  int implicit = 0;
+  for (const auto& k : job.keyframes) {
+    alg::WindowKeyframe w;
+    w.id = k.id;
+    w.camera = k.camera;
+    w.T_world_cam = k.T_world_cam.cast<double>();
+    w.depth = k.depth;
+    w.intensity = cv::Mat(k.depth.size(), CV_32F, cv::Scalar(0.5f));
+    window.add(w, maps);
+    const size_t j = window.size() - 1;
+    const auto L = window.linearize(j, window.keyframes()[j].T_world_cam, maps, window.basePixels(j));
+    implicit += L.counts.depth_implicit;
+    if (window.size() == 4) break;
+  }
+  EXPECT_GT(implicit, 0) << "no ray of the ROI's keyframes met its field";
+  // A second job over the same box replaces the first field.
+  fe.applyRefinement(runRefineJob(job, p.implicit));
+  ASSERT_EQ(fe.implicitSurfaces().size(), 1u);
+  EXPECT_NE(fe.implicitSurfaces().front().get(), o.surface.get());
 }
 
 TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {
