@@ -138,7 +138,9 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
       J *= cosine;
     }
     if (std::abs(r) <= p.depth_gate_m) {
+      const double c0 = L.cost;
       accumulate(r, p.depth_sigma_m, lambda.depth, J, L.H, L.b, L.cost);
+      L.depth_cost += L.cost - c0;
       ++n_depth;
       worst = std::max(worst, static_cast<float>(std::sqrt(lambda.depth) * std::abs(r) / p.depth_sigma_m));
     }
@@ -146,7 +148,9 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
   if (lambda.photo > 0 && gx * gx + gy * gy >= p.min_gradient * p.min_gradient) {
     const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
     if (std::abs(r) <= p.photo_gate) {
+      const double c0 = L.cost;
       accumulate(r, p.photo_sigma, lambda.photo, J, L.H, L.b, L.cost);
+      L.photo_cost += L.cost - c0;
       ++n_photo;
       worst = std::max(worst, static_cast<float>(std::sqrt(lambda.photo) * std::abs(r) / p.photo_sigma));
     }
@@ -487,6 +491,8 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   double cost = assemble(x, ev, &H, &b, rep.before);
   rep.after = rep.before;
   rep.base_cost_before = rep.base_cost_after = baseCost(x, ev);
+  std::vector<std::pair<double, double>> channel_cost_before(n);
+  for (size_t j = 0; j < n; ++j) channel_cost_before[j] = {ev[j].base.depth_cost, ev[j].base.photo_cost};
   double mu = p.lm_initial_damping;
   // DESIGN: a trial step is judged, and the next step linearized, on the
   // tangent planes of the last cast (the model the Jacobians describe);
@@ -563,6 +569,10 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   }
   assemble(x, ev, nullptr, nullptr, rep.after);  // ev is the evaluation at x
   rep.base_cost_after = baseCost(x, ev);
+  for (size_t j = 0; j < n; ++j) {
+    rep.channels_agree.push_back(ev[j].base.depth_cost <= channel_cost_before[j].first &&
+                                 ev[j].base.photo_cost <= channel_cost_before[j].second);
+  }
   return rep;
 }
 

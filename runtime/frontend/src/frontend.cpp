@@ -308,6 +308,7 @@ std::vector<KeyframeCorrection> FeedbackSolver::solve(const alg::FeedbackMaps& m
     const alg::Vector6d d = alg::logSE3(it->second.inverse() * kfs[j].T_world_cam);
     const double chi2 = d.dot(rep.marginal_information[j] * d);
     if (!(chi2 > window_.params().min_correction_chi2)) continue;
+    if (window_.params().require_channel_agreement && j < rep.channels_agree.size() && !rep.channels_agree[j]) continue;
     it->second = kfs[j].T_world_cam;
     out.push_back({kfs[j].id, kfs[j].T_world_cam});
   }

@@ -4,6 +4,8 @@
 // (a map fused from exact poses).
 #include <gtest/gtest.h>
 
+#include <opencv2/imgproc.hpp>
+
 #include <cstdio>
 
 #include <algorithm>
@@ -328,6 +330,36 @@ TEST_F(FeedbackTest, ImplicitChannelsCountOnlyInsideRefinedRegions) {
   // At the true pose both channels agree: the implicit ones add cost but
   // next to nothing to the gradient's direction.
   EXPECT_GT(L_with.cost, L_none.cost);
+}
+
+TEST_F(FeedbackTest, ChannelAgreementSeesAnImageThatDisagreesWithItsDepth) {
+  // A keyframe whose color image is shifted 3 pixels against its depth (a
+  // color camera a moment late, say), its pose exact: the photometric
+  // channel pulls it off, the depth channel's cost rises, and the solution
+  // is flagged. The same keyframe with its own image, started 1 cm off,
+  // lowers both costs.
+  FeedbackParams p;
+  p.window = 2;
+  p.odometry_information_scale = 0;
+  p.lambda_photo_explicit = 2.0;
+  for (const bool shifted : {true, false}) {
+    PoseWindow window(p);
+    WindowKeyframe kf = keyframe(14);
+    if (shifted) {
+      const cv::Mat M = (cv::Mat_<double>(2, 3) << 1, 0, 3, 0, 1, 0);
+      cv::Mat moved;
+      cv::warpAffine(kf.intensity, moved, M, kf.intensity.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+      kf.intensity = moved;
+    } else {
+      kf.T_world_cam = kf.T_world_cam * expSE3((Vector6d() << 0, 0, 0, 0.01, -0.005, 0.004).finished());
+    }
+    window.add(std::move(kf), maps());
+    const SolveReport rep = window.solve(maps());
+    ASSERT_TRUE(rep.failure.empty());
+    ASSERT_EQ(rep.channels_agree.size(), 1u);
+    EXPECT_GT(rep.accepted, 0) << (shifted ? "shifted" : "own image");
+    EXPECT_EQ(rep.channels_agree[0], !shifted) << (shifted ? "shifted image" : "own image");
+  }
 }
 
 TEST_F(FeedbackTest, TangentPlanesReproduceTheCastAndFollowItNearby) {

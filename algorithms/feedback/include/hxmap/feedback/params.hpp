@@ -60,6 +60,15 @@ struct FeedbackParams {
   /// has a few thousand pixels against tracking's whole frame: without
   /// drift it cannot beat tracking, only add its noise.
   double min_correction_chi2 = 16.8;
+  /// Feedback: and only when the solution lowers both the keyframe's depth
+  /// and its photometric cost (on its base pixels; a keyframe without
+  /// texture has no photometric cost to raise). DESIGN: the two sensors
+  /// err independently, and where one has a systematic error the solve
+  /// trades the other against it with high confidence: on the TUM slice,
+  /// corrections with chi-square 20-400 moved keyframes away from the
+  /// ground truth (ATE +5.1% with feedback); with this test +1.1%, and the
+  /// biased-odometry orbit keeps most of its correction (-45% vs -50%).
+  bool require_channel_agreement = true;
   /// Feedback: keyframes whose pose moved more than this are re-integrated.
   double reintegrate_translation_m = 0.003;
   double reintegrate_rotation_deg = 0.2;

@@ -75,6 +75,9 @@ struct SolveReport {
   /// solution, the others marginalized ((H^-1)_jj^-1), to test whether a
   /// correction stands out of the solve's own noise.
   std::vector<Matrix6d> marginal_information;
+  /// Per keyframe: neither its depth nor its photometric cost on the base
+  /// pixels rose from the starting poses to the solution.
+  std::vector<bool> channels_agree;
   bool stopped = false;     ///< the stop callback ended it early
   std::vector<Eigen::Isometry3d> poses_before;  ///< window order
   std::string failure;      ///< empty when the solve ran
@@ -117,6 +120,7 @@ class PoseWindow {
     Matrix6d H = Matrix6d::Zero();
     Vector6d b = Vector6d::Zero();
     double cost = 0;
+    double depth_cost = 0, photo_cost = 0;  ///< the cost's depth and photometric shares
     ChannelStats counts;
   };
   Linearization linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
