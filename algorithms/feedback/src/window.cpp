@@ -534,15 +534,46 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
           std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
                             [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
           std::vector<Eigen::Vector2i> next;
+          std::vector<size_t> kept;  // old extra index of each top pixel
           for (size_t k = 0; k < keep; ++k) {
             const PixelSample& px = s.extra_samples[order[k]];
-            if (ev[j].extra_pixels[order[k]].residual > 0) next.emplace_back(px.u, px.v);
+            if (ev[j].extra_pixels[order[k]].residual > 0) {
+              next.emplace_back(px.u, px.v);
+              kept.push_back(order[k]);
+            }
           }
+          const size_t n_top = next.size();
           s.extra = std::move(next);
           explore(j, s.extra);
           s.extra_samples = gather(j, s.extra);
-          if (recast) evalBase(j, x[j], ev[j]);
-          evalExtra(j, x[j], ev[j]);
+          if (recast) {
+            evalBase(j, x[j], ev[j]);
+            evalExtra(j, x[j], ev[j]);
+            continue;
+          }
+          // Between casts the top pixels keep their hits: only the explore
+          // pixels are cast.
+          auto hits = std::make_shared<std::vector<CachedHit>>();
+          if (ev[j].extra_hits) {
+            std::vector<int> new_index(ev[j].extra_pixels.size(), -1);
+            for (size_t k = 0; k < n_top && k < s.extra_samples.size(); ++k) new_index[kept[k]] = static_cast<int>(k);
+            for (const CachedHit& h : *ev[j].extra_hits) {
+              if (h.sample < new_index.size() && new_index[h.sample] >= 0) {
+                hits->push_back(h);
+                hits->back().sample = static_cast<uint32_t>(new_index[h.sample]);
+              }
+            }
+          }
+          const std::vector<PixelSample> fresh(s.extra_samples.begin() + static_cast<std::ptrdiff_t>(std::min(n_top, s.extra_samples.size())),
+                                               s.extra_samples.end());
+          std::vector<CachedHit> fresh_hits;
+          linearizeSamples(j, x[j], maps, fresh, nullptr, &fresh_hits);
+          for (CachedHit& h : fresh_hits) {
+            h.sample += static_cast<uint32_t>(n_top);
+            hits->push_back(h);
+          }
+          ev[j].extra = linearizeCached(j, x[j], s.extra_samples, *hits, &ev[j].extra_pixels);
+          ev[j].extra_hits = std::move(hits);
         }
         if (recast) since_cast = 0;
         if (rep.stopped) {
