@@ -75,8 +75,8 @@ bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& ca
   {
     const float t0 = zh * flen;
     float s0 = 0;
-    Eigen::Vector3f g0, c0;
-    if (cache.sampleWithGradient(o + t0 * d, 0.0f, s0, g0, c0) && std::abs(s0) <= vs) {
+    Eigen::Vector3f g0;
+    if (cache.sampleWithGradient(o + t0 * d, 0.0f, s0, g0, nullptr) && std::abs(s0) <= vs) {
       const float gd = g0.dot(d), gn = g0.norm();
       if (gn > 1e-6f && gd < -0.2f * gn) {
         const float t1 = t0 - s0 / gd;

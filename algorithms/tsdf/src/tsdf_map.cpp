@@ -152,6 +152,11 @@ bool BlockCache::sampleColor(const Eigen::Vector3f& p, Eigen::Vector3f& rgb) {
 
 bool BlockCache::sampleWithGradient(const Eigen::Vector3f& p, float min_weight, float& sdf, Eigen::Vector3f& gradient,
                                     Eigen::Vector3f& rgb) {
+  return sampleWithGradient(p, min_weight, sdf, gradient, &rgb);
+}
+
+bool BlockCache::sampleWithGradient(const Eigen::Vector3f& p, float min_weight, float& sdf, Eigen::Vector3f& gradient,
+                                    Eigen::Vector3f* rgb) {
   const VoxelBlock* blocks[8];
   int index[8];
   Eigen::Vector3f f;
@@ -173,14 +178,17 @@ bool BlockCache::sampleWithGradient(const Eigen::Vector3f& p, float min_weight, 
     return false;
   }
   float s[8];
-  rgb.setZero();
   sdf = 0;
   for (int c = 0; c < 8; ++c) {
     s[c] = blocks[c]->geo[index[c]].sdf_m;
-    const float w = cornerWeight(c, f);
-    sdf += w * s[c];
-    const VoxelColor& k = blocks[c]->color[index[c]];
-    rgb += w * Eigen::Vector3f(k.r, k.g, k.b);
+    sdf += cornerWeight(c, f) * s[c];
+  }
+  if (rgb) {
+    rgb->setZero();
+    for (int c = 0; c < 8; ++c) {
+      const VoxelColor& k = blocks[c]->color[index[c]];
+      *rgb += cornerWeight(c, f) * Eigen::Vector3f(k.r, k.g, k.b);
+    }
   }
   // Corner c = x | y << 1 | z << 2: differences along each axis, blended
   // over the other two.

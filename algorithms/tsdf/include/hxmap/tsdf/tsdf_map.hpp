@@ -220,6 +220,9 @@ class BlockCache {
   /// difference) and the trilinear color (0..255).
   bool sampleWithGradient(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m, Eigen::Vector3f& gradient,
                           Eigen::Vector3f& rgb);
+  /// The same; the color only when rgb is not null.
+  bool sampleWithGradient(const Eigen::Vector3f& p_world, float min_weight, float& sdf_m, Eigen::Vector3f& gradient,
+                          Eigen::Vector3f* rgb);
 
  private:
   struct Entry {
