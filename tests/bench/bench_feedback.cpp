@@ -89,6 +89,19 @@ int main(int argc, char** argv) {
     per_iter.push_back(t / std::max(1, last.iterations));
     solved = window.keyframes();
   }
+  // As the runtime solves: the window was solved when its first N-1
+  // keyframes were in it, then the newest joins and it is solved again
+  // (the N-1 start from their last planes).
+  std::vector<double> steady_ms;
+  for (int r = 0; r < reps; ++r) {
+    PoseWindow window(p);
+    for (size_t k = 0; k + 1 < kfs.size(); ++k) window.add(kfs[k], {&map, {}});
+    (void)window.solve({&map, {}});
+    window.add(kfs.back(), {&map, {}});
+    const auto t0 = std::chrono::steady_clock::now();
+    (void)window.solve({&map, {}});
+    steady_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
   {
     PoseWindow window(p);
     for (const auto& kf : kfs) window.add(kf, {&map, {}});
@@ -102,6 +115,19 @@ int main(int argc, char** argv) {
     }
     const double t = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     std::printf("  one keyframe's residual factor (raycast, channels, Jacobians): %.3f us per pixel\n", 1000 * t / px);
+    // The same cast followed by 10 evaluations on its tangent planes: the
+    // planes' share is what a step between casts costs.
+    const auto t1 = std::chrono::steady_clock::now();
+    int px2 = 0;
+    for (int r = 0; r < 20; ++r) {
+      for (size_t j = 0; j < window.size(); ++j) {
+        px2 += static_cast<int>(window.basePixels(j).size());
+        const Eigen::Isometry3d& T = window.keyframes()[j].T_world_cam;
+        (void)window.linearizeOnPlanes(j, T, T, {&map, {}}, window.basePixels(j), 10);
+      }
+    }
+    const double t2 = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
+    std::printf("  on the tangent planes of a cast: %.3f us per pixel\n", 1000 * (t2 - t * px2 / px) / px2 / 10);
   }
   double before_t = 0, after_t = 0, before_r = 0, after_r = 0;
   for (int k = 0; k < n; ++k) {
@@ -118,9 +144,13 @@ int main(int argc, char** argv) {
               "(base %d + top %d + explore %d pixels), %d iterations (%d accepted), one core\n",
               n, level1.width, level1.height, pixels, p.base_pixels, p.top_pixels, p.explore_pixels, last.iterations,
               last.accepted);
-  std::printf("  solve time: median %.2f ms (min %.2f, max %.2f over %d runs); per iteration %.2f ms\n", median(ms),
+  std::printf("  solve time of a fresh window: median %.2f ms (min %.2f, max %.2f over %d runs); per iteration %.2f ms\n", median(ms),
               *std::min_element(ms.begin(), ms.end()), *std::max_element(ms.begin(), ms.end()), reps,
               median(per_iter));
+  std::printf("  solve time when a keyframe joins a window solved before (as the runtime solves): median %.2f ms "
+              "(min %.2f, max %.2f)\n",
+              median(steady_ms), *std::min_element(steady_ms.begin(), steady_ms.end()),
+              *std::max_element(steady_ms.begin(), steady_ms.end()));
   std::printf("  residuals at the end: photometric %d, depth %d (explicit)\n", last.after.photo_explicit,
               last.after.depth_explicit);
   std::printf("  keyframe pose error (mean): %.2f mm, %.3f deg before -> %.2f mm, %.3f deg after\n", 1000 * before_t,

@@ -172,11 +172,14 @@ bool bilinear(const cv::Mat& img, double x, double y, double& out) {
 
 PoseWindow::Linearization PoseWindow::linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast,
                                                         const Eigen::Isometry3d& T, const FeedbackMaps& maps,
-                                                        const std::vector<Eigen::Vector2i>& pixels) const {
+                                                        const std::vector<Eigen::Vector2i>& pixels,
+                                                        int repeat) const {
   const std::vector<PixelSample> samples = gather(j, pixels);
   std::vector<CachedHit> hits;
   linearizeSamples(j, T_cast, maps, samples, nullptr, &hits);
-  return linearizeCached(j, T, samples, hits, nullptr);
+  Linearization L;
+  for (int r = 0; r < std::max(1, repeat); ++r) L = linearizeCached(j, T, samples, hits, nullptr);
+  return L;
 }
 
 PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
@@ -473,10 +476,21 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   };
   std::vector<Eigen::Isometry3d> x(n);
   for (size_t j = 0; j < n; ++j) x[j] = keyframes_[j].T_world_cam;
+  // DESIGN: a keyframe that was in the previous solve starts from that
+  // solve's last planes for its base pixels (the window is solved again at
+  // every keyframe, and 7 of its 8 keyframes were just solved against
+  // nearly the same map); its extras, and the new keyframe, are cast. The
+  // first recast (after relinearize_every steps) replaces the planes with
+  // the current map's.
   std::vector<KfEval> ev(n);
   for (size_t j = 0; j < n; ++j) {
     if (halted()) return rep;
-    evalBase(j, x[j], ev[j]);
+    if (p.reuse_planes && slots_[j].base_hits) {
+      ev[j].base = linearizeCached(j, x[j], slots_[j].base_samples, *slots_[j].base_hits, nullptr);
+      ev[j].base_hits = slots_[j].base_hits;
+    } else {
+      evalBase(j, x[j], ev[j]);
+    }
     evalExtra(j, x[j], ev[j]);
   }
   Eigen::MatrixXd H;
@@ -588,7 +602,10 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       mu *= 4.0;
     }
   }
-  for (size_t j = 0; j < n; ++j) keyframes_[j].T_world_cam = x[j];
+  for (size_t j = 0; j < n; ++j) {
+    keyframes_[j].T_world_cam = x[j];
+    slots_[j].base_hits = ev[j].base_hits;
+  }
   {
     Eigen::MatrixXd Hr = H;
     for (int k = 0; k < dim; ++k) Hr(k, k) += 1e-9 * std::max(1.0, Hr(k, k));

@@ -191,6 +191,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("explore_pixels", f.explore_pixels, 0, 1 << 20);
   v.integer("iterations", f.iterations, 1, 100);
   v.integer("relinearize_every", f.relinearize_every, 1, 100);
+  v.boolean("reuse_planes", f.reuse_planes);
   v.number("lambda_photo_explicit", f.lambda_photo_explicit, 0, kBig);
   v.number("lambda_depth_explicit", f.lambda_depth_explicit, 0, kBig);
   v.number("lambda_photo_implicit", f.lambda_photo_implicit, 0, kBig);

@@ -18,6 +18,9 @@ struct FeedbackParams {
   /// between, steps are judged and linearized on the tangent planes of the
   /// last cast (1: cast at every step).
   int relinearize_every = 2;
+  /// A keyframe already solved starts the next solve from its last planes
+  /// (its base pixels are not cast until the first recast).
+  bool reuse_planes = true;
   /// Per-channel weights (eq 13): explicit (TSDF raycast) and implicit
   /// (neural fields inside refined ROIs) photometric and depth.
   double lambda_photo_explicit = 0.5;

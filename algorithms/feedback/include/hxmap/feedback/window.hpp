@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <shared_mutex>
 #include <string>
 #include <vector>
@@ -127,8 +128,10 @@ class PoseWindow {
                           const std::vector<Eigen::Vector2i>& pixels, std::vector<PixelResult>* out = nullptr) const;
   /// The same factor at pose T from rays cast at T_cast: on the tangent
   /// planes of those hits, as the solve's steps between casts see it.
+  /// (`repeat` > 1 evaluates the planes that many times: for benchmarks.)
   Linearization linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast, const Eigen::Isometry3d& T,
-                                  const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels) const;
+                                  const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels,
+                                  int repeat = 1) const;
 
  private:
   /// What a residual reads of its pixel, packed. DESIGN: gathered once per
@@ -162,6 +165,9 @@ class PoseWindow {
     std::vector<Eigen::Vector2i> base;   ///< uniform over pixels with depth
     std::vector<Eigen::Vector2i> extra;  ///< top + explore of this iteration
     std::vector<PixelSample> base_samples, extra_samples;  ///< the same, gathered
+    /// The base pixels' hits of the last cast of an earlier solve (world
+    /// frame tangent planes): the next solve starts from them.
+    std::shared_ptr<const std::vector<CachedHit>> base_hits;
     cv::Mat intensity;                   ///< blurred to the map's color resolution
     cv::Mat grad_x, grad_y;              ///< its gradient per pixel
     cv::Mat usable;                      ///< CV_8U: 1 where a pixel may join Omega
