@@ -505,8 +505,6 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   double cost = assemble(x, ev, &H, &b, rep.before);
   rep.after = rep.before;
   rep.base_cost_before = rep.base_cost_after = baseCost(x, ev);
-  std::vector<std::pair<double, double>> channel_cost_before(n);
-  for (size_t j = 0; j < n; ++j) channel_cost_before[j] = {ev[j].base.depth_cost, ev[j].base.photo_cost};
   double mu = p.lm_initial_damping;
   // DESIGN: a trial step is judged, and the next step linearized, on the
   // tangent planes of the last cast (the model the Jacobians describe);
@@ -617,9 +615,19 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   }
   assemble(x, ev, nullptr, nullptr, rep.after);  // ev is the evaluation at x
   rep.base_cost_after = baseCost(x, ev);
-  for (size_t j = 0; j < n; ++j) {
-    rep.channels_agree.push_back(ev[j].base.depth_cost <= channel_cost_before[j].first &&
-                                 ev[j].base.photo_cost <= channel_cost_before[j].second);
+  // Before and after on the same planes (the last cast's): the starting
+  // poses evaluated on them, so that the comparison is of poses, not of
+  // casts (the start may have been evaluated on an earlier solve's planes).
+  {
+    std::vector<KfEval> start(n);
+    static const std::vector<CachedHit> kNone;
+    for (size_t j = 0; j < n; ++j) {
+      start[j].base = linearizeCached(j, rep.poses_before[j], slots_[j].base_samples,
+                                      ev[j].base_hits ? *ev[j].base_hits : kNone, nullptr);
+      rep.channels_agree.push_back(ev[j].base.depth_cost <= start[j].base.depth_cost &&
+                                   ev[j].base.photo_cost <= start[j].base.photo_cost);
+    }
+    rep.base_cost_before = baseCost(rep.poses_before, start);
   }
   return rep;
 }
