@@ -467,9 +467,9 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     return cost;
   };
 
-  // The caller's stop is asked before each keyframe's evaluation (the
-  // slices a scheduler admits); once it says stop, the solve keeps the last
-  // accepted poses.
+  // The caller's stop is asked before each keyframe's cast and each step
+  // (the slices a scheduler admits); once it says stop, the solve keeps the
+  // last accepted poses.
   auto halted = [&] {
     if (!rep.stopped && stop && stop()) rep.stopped = true;
     return rep.stopped;

@@ -94,8 +94,9 @@ class PoseWindow {
   void add(WindowKeyframe keyframe, const FeedbackMaps& maps);
 
   /// Levenberg-Marquardt over the window's poses. `stop` (optional) is
-  /// asked before each keyframe's evaluation (about 1/N of an iteration):
-  /// true ends the solve with the last accepted poses.
+  /// asked before each keyframe's cast into the maps (the costly part; a
+  /// step on the tangent planes of the last cast is not interrupted): true
+  /// ends the solve with the last accepted poses.
   SolveReport solve(const FeedbackMaps& maps, const std::function<bool()>& stop = {});
 
   const std::vector<WindowKeyframe>& keyframes() const { return keyframes_; }
