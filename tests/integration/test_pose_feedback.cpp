@@ -5,7 +5,9 @@
 // drift it must not make it worse beyond a small tolerance.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstdio>
+#include <thread>
 
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
@@ -69,6 +71,35 @@ TEST_F(PoseFeedbackLoop, RemovesInjectedDriftAndLeavesAGoodTrajectoryAlone) {
   EXPECT_LT(clean_on.ate_m, 1.05 * clean_off.ate_m + 0.0002)
       << "ATE " << clean_off.ate_m << " -> " << clean_on.ate_m;
   std::printf("no drift: ATE %.2f -> %.2f mm\n", 1000 * clean_off.ate_m, 1000 * clean_on.ate_m);
+}
+
+TEST_F(PoseFeedbackLoop, SolveTimeLeavesOutTheSchedulersWaits) {
+  // The real-time feedback thread's stop callback waits for slack between
+  // slices: the tally's solve time is the solver's own.
+  FrontendParams p;
+  p.quality_enabled = false;
+  p.refine_enabled = false;
+  p.feedback.image_level = 0;
+  Frontend fe(cam_, p);
+  fe.setInitialPose(truth_.front().T_world_cam);
+  for (size_t i = 0; i < 40; ++i) fe.process(frames_[i]);
+  FeedbackSolver solver(p.feedback);
+  const alg::FeedbackMaps maps{&fe.map(), {}, nullptr};
+  for (auto& kf : fe.takeFeedbackKeyframes()) solver.add(std::move(kf), maps);
+  ASSERT_GE(solver.window().size(), 3u);
+  int calls = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  solver.solve(maps, [&] {
+    ++calls;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    return false;
+  });
+  const double wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_EQ(solver.tally().solve_ms.size(), 1u);
+  ASSERT_GT(calls, 3);
+  const double solve_ms = solver.tally().solve_ms.front();
+  EXPECT_GT(solve_ms, 0.0);
+  EXPECT_LT(solve_ms, wall_ms - 20.0 * calls + 1.0) << "wall " << wall_ms << " ms, " << calls << " waits of 20 ms";
 }
 
 }  // namespace

@@ -276,7 +276,7 @@ class Frontend {
 struct FeedbackTally {
   uint64_t windows = 0, stopped = 0, failed = 0;
   uint64_t corrections_sent = 0;      ///< keyframe estimates that stood out of the solve's noise
-  std::vector<double> solve_ms;       ///< per solved window
+  std::vector<double> solve_ms;       ///< per solved window, without the stop callback's waits
   double cost_before = 0, cost_after = 0;  ///< summed over windows
   /// Residuals at the solution, summed over windows: explicit (TSDF) and
   /// implicit (refined regions' fields), photometric + depth.
