@@ -589,8 +589,9 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
         }
         if (recast) since_cast = 0;
         if (rep.stopped) {
-          // x is accepted; some keyframes' sets are mixed: evaluate the
-          // rest from their planes for a consistent report.
+          // x is accepted. The keyframes the update reached have their new
+          // pixel sets, the rest their old ones, each with its evaluation
+          // at x: the report below is consistent either way.
           break;
         }
       }
