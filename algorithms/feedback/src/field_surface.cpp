@@ -18,7 +18,6 @@ FieldSurface::FieldSurface(const NeuralField& field, float band_voxels)
   const float* cp = field.parameters().data();
   const float band = band_voxels * voxel_m_;
   std::vector<size_t> nodes;
-  Eigen::Matrix3Xf points(3, 0);
   std::vector<Eigen::Vector3f> pts;
   for (int z = 0; z < grid_.nodes.z(); ++z) {
     for (int y = 0; y < grid_.nodes.y(); ++y) {
@@ -36,6 +35,7 @@ FieldSurface::FieldSurface(const NeuralField& field, float band_voxels)
   }
   // Batched forward passes (bounded memory).
   constexpr size_t kBatch = 4096;
+  Eigen::Matrix3Xf points;
   Eigen::VectorXf s;
   Eigen::Matrix3Xf c;
   for (size_t b = 0; b < pts.size(); b += kBatch) {

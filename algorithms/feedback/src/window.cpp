@@ -129,6 +129,16 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
                  double D, double I, double gx, double gy, const SurfaceHit& hit, double cosine, ChannelWeights lambda,
                  int& n_photo, int& n_depth, PoseWindow::Linearization& L, float& worst) {
   Vector6d J;
+  // A residual within its gate: into H, b and the cost (and the channel's
+  // share of it), counted, and its weighted size kept for Omega's top set.
+  auto take = [&](double r, double gate, double sigma, double lambda_c, double& channel_cost, int& count) {
+    if (!(std::abs(r) <= gate)) return;
+    const double c0 = L.cost;
+    accumulate(r, sigma, lambda_c, J, L.H, L.b, L.cost);
+    channel_cost += L.cost - c0;
+    ++count;
+    worst = std::max(worst, static_cast<float>(std::sqrt(lambda_c) * std::abs(r) / sigma));
+  };
   if (lambda.depth > 0) {
     double r = depthResidual(cam, T, u, v, D, hit, J);
     if (p.depth_point_to_plane) {
@@ -137,23 +147,11 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
       r *= cosine;
       J *= cosine;
     }
-    if (std::abs(r) <= p.depth_gate_m) {
-      const double c0 = L.cost;
-      accumulate(r, p.depth_sigma_m, lambda.depth, J, L.H, L.b, L.cost);
-      L.depth_cost += L.cost - c0;
-      ++n_depth;
-      worst = std::max(worst, static_cast<float>(std::sqrt(lambda.depth) * std::abs(r) / p.depth_sigma_m));
-    }
+    take(r, p.depth_gate_m, p.depth_sigma_m, lambda.depth, L.depth_cost, n_depth);
   }
   if (lambda.photo > 0 && gx * gx + gy * gy >= p.min_gradient * p.min_gradient) {
     const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
-    if (std::abs(r) <= p.photo_gate) {
-      const double c0 = L.cost;
-      accumulate(r, p.photo_sigma, lambda.photo, J, L.H, L.b, L.cost);
-      L.photo_cost += L.cost - c0;
-      ++n_photo;
-      worst = std::max(worst, static_cast<float>(std::sqrt(lambda.photo) * std::abs(r) / p.photo_sigma));
-    }
+    take(r, p.photo_gate, p.photo_sigma, lambda.photo, L.photo_cost, n_photo);
   }
 }
 
