@@ -5,6 +5,11 @@ target_compile_options(hxmap_flags INTERFACE -Wall -Wextra -Wpedantic)
 # No errno from libm: lets sqrt and friends inline (hxmap never reads errno
 # after math calls).
 target_compile_options(hxmap_flags INTERFACE -fno-math-errno)
+# No floating-point traps either (hxmap never enables or reads them): lets
+# GCC turn `cond ? a : b` over floats into a blend, which is what vectorizes
+# branch-free loops such as the depth filter's taps. Values are unchanged
+# (this is not -ffast-math); clang already assumes it.
+target_compile_options(hxmap_flags INTERFACE -fno-trapping-math)
 if(HXMAP_WERROR)
   target_compile_options(hxmap_flags INTERFACE -Werror)
 endif()

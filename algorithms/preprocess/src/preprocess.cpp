@@ -8,25 +8,26 @@ namespace hxmap::alg {
 
 namespace {
 
-// exp(-x) for x in [0, 4.5] (the range kernel is cut at 3 sigma) from a table:
-// the filter evaluates it 25 times per pixel.
-class ExpTable {
- public:
-  ExpTable() {
-    for (int i = 0; i <= kSize; ++i) table_[i] = std::exp(-kMax * static_cast<float>(i) / kSize);
-  }
-  float operator()(float x) const { return table_[static_cast<int>(x * (kSize / kMax) + 0.5f)]; }
-  static constexpr float kMax = 4.5f;
+// exp(-x) for x in [0, kMax]: exp(-x/8) by its degree-5 Taylor polynomial,
+// squared three times (relative error below 4e-4). DESIGN: a lookup table
+// read per tap kept the filter scalar; this is multiplies only, so the tap
+// loops below vectorize (the filter went from about half of preprocessing
+// to ...).
+constexpr float kRangeCut = 4.5f;  // the range kernel is cut at 3 sigma
+inline float expNeg(float x) {
+  const float y = -0.125f * x;
+  float e = 1.0f + y * (1.0f + y * (0.5f + y * (1.0f / 6 + y * (1.0f / 24 + y * (1.0f / 120)))));
+  e *= e;
+  e *= e;
+  return e * e;
+}
 
- private:
-  static constexpr int kSize = 1024;
-  float table_[kSize + 1];
-};
+}  // namespace
 
 cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const ParallelFor& parallel) {
   const int r = p.bilateral_radius_px;
   if (r <= 0) return depth.clone();
-  static const ExpTable exp_neg;
+  const int cols = depth.cols;
   cv::Mat out(depth.size(), CV_32F, cv::Scalar(0));
   std::vector<float> spatial((2 * r + 1) * (2 * r + 1));
   for (int dy = -r; dy <= r; ++dy) {
@@ -36,38 +37,52 @@ cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const Pa
     }
   }
   const float k = static_cast<float>(p.bilateral_sigma_depth_factor);
+  // DESIGN: taps outside, pixels inside. Each tap (dx, dy) runs over a whole
+  // row of output pixels with no branch (invalid neighbours, the image
+  // border and values beyond the range cut are weight 0), which the
+  // compiler turns into SIMD at the baseline instruction set.
   parallel(static_cast<size_t>(depth.rows), [&](size_t r0, size_t r1) {
+    std::vector<float> inv2(cols), sum(cols), wsum(cols);
     for (int v = static_cast<int>(r0); v < static_cast<int>(r1); ++v) {
       const float* row = depth.ptr<float>(v);
-      float* orow = out.ptr<float>(v);
-      const int v0 = std::max(0, v - r), v1 = std::min(depth.rows - 1, v + r);
-      for (int u = 0; u < depth.cols; ++u) {
-        const float z = row[u];
-        if (z <= 0) continue;
-        const float sr = k * depthSigma(z, p);
-        const float inv2 = 1.0f / (2 * sr * sr);
-        const int u0 = std::max(0, u - r), u1 = std::min(depth.cols - 1, u + r);
-        float sum = 0, wsum = 0;
-        for (int vv = v0; vv <= v1; ++vv) {
-          const float* nrow = depth.ptr<float>(vv);
-          const float* srow = &spatial[(vv - v + r) * (2 * r + 1) + r - u];
-          for (int uu = u0; uu <= u1; ++uu) {
-            const float zn = nrow[uu];
-            if (zn <= 0) continue;
-            const float dz = zn - z;
-            const float x = dz * dz * inv2;
-            if (x > ExpTable::kMax) continue;  // beyond 3 sigma: another surface
-            const float w = srow[uu] * exp_neg(x);
-            sum += w * zn;
-            wsum += w;
+      for (int u = 0; u < cols; ++u) {
+        const float sr = k * depthSigma(row[u], p);  // > 0 for any z
+        inv2[u] = 1.0f / (2 * sr * sr);
+      }
+      std::fill(sum.begin(), sum.end(), 0.0f);
+      std::fill(wsum.begin(), wsum.end(), 0.0f);
+      const int dy0 = std::max(-r, -v), dy1 = std::min(r, depth.rows - 1 - v);
+      for (int dy = dy0; dy <= dy1; ++dy) {
+        const float* nrow = depth.ptr<float>(v + dy);
+        for (int dx = -r; dx <= r; ++dx) {
+          const float ws = spatial[(dy + r) * (2 * r + 1) + dx + r];
+          const int u0 = std::max(0, -dx), u1 = std::min(cols, cols - dx);
+          const float* zc = row;
+          const float* zn = nrow + dx;
+          const float* iv = inv2.data();
+          float* s = sum.data();
+          float* ww = wsum.data();
+          for (int u = u0; u < u1; ++u) {
+            const float n = zn[u];
+            const float d = n - zc[u];
+            const float x = d * d * iv[u];
+            const float e = ws * expNeg(x);  // computed for every tap: no branch
+            const float w = (n > 0.0f) & (x <= kRangeCut) ? e : 0.0f;
+            s[u] += w * n;
+            ww[u] += w;
           }
         }
-        orow[u] = sum / wsum;
+      }
+      float* orow = out.ptr<float>(v);
+      for (int u = 0; u < cols; ++u) {
+        if (row[u] > 0) orow[u] = sum[u] / wsum[u];  // the centre's own weight is 1
       }
     }
   });
   return out;
 }
+
+namespace {
 
 // Confidence from the noise model, incidence angle and distance to depth
 // discontinuities (invalid pixels count as discontinuities).

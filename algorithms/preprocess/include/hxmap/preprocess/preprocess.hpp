@@ -56,6 +56,13 @@ inline float depthSigma(float z_m, const PreprocessParams& p) {
 PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& camera, const PreprocessParams& params,
                                   const ParallelFor& parallel = serialFor);
 
+/// Edge-preserving denoise of a depth map: per valid pixel, the mean of its
+/// valid neighbours within bilateral_radius_px, weighted by a Gaussian of the
+/// pixel distance (bilateral_sigma_px) and one of the depth difference
+/// (bilateral_sigma_depth_factor times the sensor sigma at the pixel), cut at
+/// 3 range sigmas. Invalid pixels stay 0.
+cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& params, const ParallelFor& parallel = serialFor);
+
 /// Camera-frame normals from a vertex map (central differences); pixels whose
 /// neighbours are invalid or jump by more than `max_jump(z)` get 0.
 cv::Mat computeNormals(const cv::Mat& vertex, const PreprocessParams& params);
