@@ -99,16 +99,21 @@ struct Accumulation {
 // result does not depend on the number of threads.
 constexpr int kChunks = 8;
 
-template <typename Body>
-void accumulateBands(int rows, int stride, const ParallelFor& parallel, Accumulation& acc, const Body& body) {
+template <typename Body>  // body(band, v_begin, v_end)
+void forBands(int rows, int stride, const ParallelFor& parallel, const Body& body) {
   const int steps = (rows + stride - 1) / stride;
-  std::array<Accumulation, kChunks> part;
   parallel(kChunks, [&](size_t c0, size_t c1) {
     for (size_t c = c0; c < c1; ++c) {
       const int s0 = static_cast<int>(c) * steps / kChunks, s1 = (static_cast<int>(c) + 1) * steps / kChunks;
-      body(s0 * stride, std::min(rows, s1 * stride), part[c]);
+      body(static_cast<int>(c), s0 * stride, std::min(rows, s1 * stride));
     }
   });
+}
+
+template <typename Body>
+void accumulateBands(int rows, int stride, const ParallelFor& parallel, Accumulation& acc, const Body& body) {
+  std::array<Accumulation, kChunks> part;
+  forBands(rows, stride, parallel, [&](int c, int v0, int v1) { body(v0, v1, part[c]); });
   for (const auto& p : part) acc.merge(p);
 }
 
@@ -182,58 +187,85 @@ inline Eigen::Vector3f bilinear3(const cv::Mat& img, float u, float v) {
           w00 * r0[2] + w01 * r0[5] + w10 * r1[2] + w11 * r1[5]};
 }
 
-// Photometric residuals r = I_cur(pi(T^-1 T_ref p_ref)) - I_ref(p_ref), added
-// to acc. Reference points come from the level's depth; their confidence from
-// `ref_conf`, which may be `conf_shift` levels coarser.
-void accumulatePhotometric(const FrameLevel& cur, const FrameLevel& ref, const cv::Mat& ref_conf, int conf_shift,
-                           const Eigen::Isometry3f& T_world_ref, const Eigen::Isometry3f& T,
-                           const TrackingParams& params, int stride, int v_begin, int v_end, Accumulation& acc) {
+// A reference pixel of the photometric term: its point in the world and
+// its intensity and confidence.
+struct RefPoint {
+  float y[3];
+  float intensity, conf;
+};
+
+// The reference pixels of rows [v_begin, v_end) at `stride`, with depth,
+// confidence (from `ref_conf`, which may be `conf_shift` levels coarser)
+// and an intensity gradient of their own not far below the one the warped
+// pixel must have. DESIGN: gathered once per level and frame rather than in
+// every Gauss-Newton iteration, so that an iteration reads one packed array
+// and transforms each point once. Half of the points that reach the
+// gradient test in the current image fail it; the ones whose own gradient
+// is well below the threshold (photometric_reference_gradient_ratio) are
+// left out here.
+void gatherReference(const FrameLevel& ref, const cv::Mat& ref_conf, int conf_shift,
+                     const Eigen::Isometry3f& T_world_ref, const TrackingParams& params, int stride, int v_begin,
+                     int v_end, std::vector<RefPoint>& out) {
+  out.clear();
+  const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
+  const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
+  const int conf_cols = ref_conf.cols;
+  const float gmin_ref = static_cast<float>(params.photometric_reference_gradient_ratio * params.photometric_min_gradient);
+  const float gmin2_ref = gmin_ref * gmin_ref;
+  for (int v = v_begin; v < v_end; v += stride) {
+    const float* drow = ref.depth.ptr<float>(v);
+    const float* irow = ref.intensity.ptr<float>(v);
+    const int cv_row = std::min(v >> conf_shift, ref_conf.rows - 1);
+    const float* crow = ref_conf.ptr<float>(cv_row);
+    const auto* grow = ref.intensity_grad.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < ref.depth.cols; u += stride) {
+      const float z = drow[u];
+      const float conf = crow[std::min(u >> conf_shift, conf_cols - 1)];
+      if (!(z > 0) || conf <= 0) continue;
+      const cv::Vec3f& gr = grow[u];
+      if (gr[1] * gr[1] + gr[2] * gr[2] < gmin2_ref) continue;
+      const Eigen::Vector3f p_ref((static_cast<float>(u) - rcx) * rfx * z, (static_cast<float>(v) - rcy) * rfy * z, z);
+      const Eigen::Vector3f y = T_world_ref * p_ref;
+      out.push_back({{y.x(), y.y(), y.z()}, irow[u], conf});
+    }
+  }
+}
+
+// Photometric residuals r = I_cur(pi(T^-1 y)) - I_ref of reference points y
+// in the world, added to acc.
+void accumulatePhotometric(const FrameLevel& cur, const std::vector<RefPoint>& points, const Eigen::Isometry3f& T,
+                           const TrackingParams& params, Accumulation& acc) {
   const Eigen::Isometry3f T_cur_world = T.inverse();
   const Eigen::Matrix3f R = T.linear();
-  const Eigen::Isometry3f T_cur_ref = T_cur_world * T_world_ref;
   const float fx = static_cast<float>(cur.camera.fx), fy = static_cast<float>(cur.camera.fy);
   const float cx = static_cast<float>(cur.camera.cx), cy = static_cast<float>(cur.camera.cy);
   const float scale = static_cast<float>(params.photometric_scale_m);
   const float huber = static_cast<float>(params.photometric_huber);
   const float gmin2 = static_cast<float>(params.photometric_min_gradient * params.photometric_min_gradient);
   const float W = static_cast<float>(cur.intensity.cols - 2), H = static_cast<float>(cur.intensity.rows - 2);
-  const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
-  const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
-  const int conf_cols = ref_conf.cols;
-  for (int v = v_begin; v < v_end; v += stride) {
-    const float* drow = ref.depth.ptr<float>(v);
-    const float* irow = ref.intensity.ptr<float>(v);
-    const int cv_row = std::min(v >> conf_shift, ref_conf.rows - 1);
-    const float* crow = ref_conf.ptr<float>(cv_row);
-    for (int u = 0; u < ref.depth.cols; u += stride) {
-      const float z = drow[u];
-      const float conf = crow[std::min(u >> conf_shift, conf_cols - 1)];
-      if (!(z > 0) || conf <= 0) continue;
-      const Eigen::Vector3f p_ref((static_cast<float>(u) - rcx) * rfx * z, (static_cast<float>(v) - rcy) * rfy * z, z);
-      const Eigen::Vector3f pc = T_cur_ref * p_ref;
-      if (pc.z() <= 0.05f) continue;
-      const float inv_z = 1.0f / pc.z();
-      const float uu = fx * pc.x() * inv_z + cx, vv = fy * pc.y() * inv_z + cy;
-      if (!(uu >= 0.0f && vv >= 0.0f && uu < W && vv < H)) continue;
-      // Occlusion: the current depth there must agree with the warped point.
-      const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
-      if (!(zc > 0.0f) || std::abs(zc - pc.z()) > 0.03f + 0.02f * pc.z()) continue;
-      const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
-      const float gx = ig.y(), gy = ig.z();
-      if (gx * gx + gy * gy < gmin2) continue;
-      const float r = ig.x() - irow[u];
-      // d r / d p_cur = g * d pi / d p.
-      const Eigen::Vector3f g(gx * fx * inv_z, gy * fy * inv_z,
-                              -(gx * fx * pc.x() + gy * fy * pc.y()) * inv_z * inv_z);
-      // p_cur = T^-1 y with y in the world; left perturbation of T gives
-      // d r / d omega = (a x y)^T, d r / d v = -a^T with a = R g.
-      const Eigen::Vector3f y = T_world_ref * p_ref;
-      const Eigen::Vector3f a = R * g;
-      const Eigen::Vector3f ay = scale * a.cross(y);
-      const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
-      const float ar = std::abs(r);
-      acc.eq.add(J, conf * (ar <= huber ? 1.0f : huber / ar), scale * r);
-    }
+  for (const RefPoint& p : points) {
+    const Eigen::Vector3f y(p.y[0], p.y[1], p.y[2]);
+    const Eigen::Vector3f pc = T_cur_world * y;
+    if (pc.z() <= 0.05f) continue;
+    const float inv_z = 1.0f / pc.z();
+    const float uu = fx * pc.x() * inv_z + cx, vv = fy * pc.y() * inv_z + cy;
+    if (!(uu >= 0.0f && vv >= 0.0f && uu < W && vv < H)) continue;
+    // Occlusion: the current depth there must agree with the warped point.
+    const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
+    if (!(zc > 0.0f) || std::abs(zc - pc.z()) > 0.03f + 0.02f * pc.z()) continue;
+    const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
+    const float gx = ig.y(), gy = ig.z();
+    if (gx * gx + gy * gy < gmin2) continue;
+    const float r = ig.x() - p.intensity;
+    // d r / d p_cur = g * d pi / d p.
+    const Eigen::Vector3f g(gx * fx * inv_z, gy * fy * inv_z, -(gx * fx * pc.x() + gy * fy * pc.y()) * inv_z * inv_z);
+    // p_cur = T^-1 y; left perturbation of T gives d r / d omega = (a x y)^T,
+    // d r / d v = -a^T with a = R g.
+    const Eigen::Vector3f a = R * g;
+    const Eigen::Vector3f ay = scale * a.cross(y);
+    const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
+    const float ar = std::abs(r);
+    acc.eq.add(J, p.conf * (ar <= huber ? 1.0f : huber / ar), scale * r);
   }
   acc.eq.flush();
 }
@@ -264,6 +296,20 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     const int iters = iterations[std::min(l - finest, 2)];
     const int stride = l == finest ? params.icp_stride_finest : 1;
     const int photometric_stride = l == finest ? std::max(1, params.photometric_stride_finest) : 1;
+    // At the finest level, intensity at full resolution where the frames
+    // have it (finer texture than the geometry's level).
+    const int pl = l == finest && !frame.levels[0].intensity.empty() && use_photometric &&
+                           !reference.frame->levels[0].intensity.empty() ? 0 : l;
+    const bool photometric = use_photometric && static_cast<size_t>(l) < reference.frame->levels.size();
+    std::array<std::vector<RefPoint>, kChunks> ref_points;
+    if (photometric) {
+      const FrameLevel& ref = reference.frame->levels[pl];
+      const Eigen::Isometry3f T_world_ref = reference.T_world_cam.cast<float>();
+      forBands(ref.depth.rows, photometric_stride, parallel, [&](int c, int v0, int v1) {
+        gatherReference(ref, reference.frame->levels[l].confidence, l - pl, T_world_ref, params, photometric_stride, v0,
+                        v1, ref_points[c]);
+      });
+    }
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
       const Eigen::Isometry3f Tf = T.cast<float>();
@@ -276,18 +322,12 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
         have_last = true;
       }
       if (acc.inliers < 6) break;
-      if (use_photometric && static_cast<size_t>(l) < reference.frame->levels.size()) {
-        // At the finest level, intensity at full resolution where the frames
-        // have it (finer texture than the geometry's level).
-        const int pl = l == finest && !frame.levels[0].intensity.empty() &&
-                               !reference.frame->levels[0].intensity.empty() ? 0 : l;
-        const FrameLevel& cur = frame.levels[pl];
-        const FrameLevel& ref = reference.frame->levels[pl];
-        const Eigen::Isometry3f T_world_ref = reference.T_world_cam.cast<float>();
-        accumulateBands(ref.depth.rows, photometric_stride, parallel, acc, [&](int v0, int v1, Accumulation& a) {
-          accumulatePhotometric(cur, ref, reference.frame->levels[l].confidence, l - pl, T_world_ref, Tf, params,
-                                photometric_stride, v0, v1, a);
+      if (photometric) {
+        std::array<Accumulation, kChunks> part;
+        forBands(reference.frame->levels[pl].depth.rows, photometric_stride, parallel, [&](int c, int, int) {
+          accumulatePhotometric(frame.levels[pl], ref_points[c], Tf, params, part[c]);
         });
+        for (const auto& p : part) acc.merge(p);
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());

@@ -102,6 +102,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("photometric_scale_m", k.photometric_scale_m, 0, 10);
   v.number("photometric_huber", k.photometric_huber, 1e-4, 1);
   v.number("photometric_min_gradient", k.photometric_min_gradient, 0, 1);
+  v.number("photometric_reference_gradient_ratio", k.photometric_reference_gradient_ratio, 0, 1);
   v.integer("photometric_stride_finest", k.photometric_stride_finest, 1, 16);
   v.number("convergence_translation_m", k.convergence_translation_m, 0, 1);
   v.number("convergence_rotation_rad", k.convergence_rotation_rad, 0, 1);
