@@ -28,7 +28,7 @@ cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const Pa
   const int r = p.bilateral_radius_px;
   if (r <= 0) return depth.clone();
   const int cols = depth.cols;
-  cv::Mat out(depth.size(), CV_32F, cv::Scalar(0));
+  cv::Mat out(depth.size(), CV_32F);  // every pixel written below
   std::vector<float> spatial((2 * r + 1) * (2 * r + 1));
   for (int dy = -r; dy <= r; ++dy) {
     for (int dx = -r; dx <= r; ++dx) {
@@ -75,7 +75,7 @@ cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const Pa
       }
       float* orow = out.ptr<float>(v);
       for (int u = 0; u < cols; ++u) {
-        if (row[u] > 0) orow[u] = sum[u] / wsum[u];  // the centre's own weight is 1
+        orow[u] = row[u] > 0 ? sum[u] / wsum[u] : 0.0f;  // the centre's own weight is 1
       }
     }
   });
@@ -110,7 +110,7 @@ cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat
   const float sigma_ref = depthSigma(1.0f, p);
   const float cos_min = static_cast<float>(std::cos(p.max_incidence_deg * M_PI / 180.0));
   const float edge_d = static_cast<float>(p.edge_confidence_distance_px);
-  cv::Mat conf(depth.size(), CV_32F, cv::Scalar(0));
+  cv::Mat conf(depth.size(), CV_32F);  // every pixel written below
   for (int v = 0; v < depth.rows; ++v) {
     const float* row = depth.ptr<float>(v);
     const float* drow = dist.ptr<float>(v);
@@ -119,6 +119,7 @@ cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat
     float* crow = conf.ptr<float>(v);
     for (int u = 0; u < depth.cols; ++u) {
       const float z = row[u];
+      crow[u] = 0.0f;
       if (z <= 0) continue;
       const float c_noise = std::min(1.0f, sigma_ref / depthSigma(z, p));
       float c_angle = 0.5f;  // unknown normal (next to an edge)
@@ -159,13 +160,16 @@ cv::Mat intensityWithGradient(const cv::Mat& intensity, const ParallelFor& paral
 }  // namespace
 
 cv::Mat vertexMap(const cv::Mat& depth, const PinholeCamera& c) {
-  cv::Mat vertex(depth.size(), CV_32FC3, cv::Scalar(0, 0, 0));
+  cv::Mat vertex(depth.size(), CV_32FC3);  // every pixel written below
   for (int v = 0; v < depth.rows; ++v) {
     const float* row = depth.ptr<float>(v);
     auto* out = vertex.ptr<cv::Vec3f>(v);
     for (int u = 0; u < depth.cols; ++u) {
       const float z = row[u];
-      if (z <= 0) continue;
+      if (z <= 0) {
+        out[u] = cv::Vec3f(0.0f, 0.0f, 0.0f);
+        continue;
+      }
       const Eigen::Vector3f p = c.backproject(static_cast<float>(u), static_cast<float>(v), z);
       out[u] = cv::Vec3f(p.x(), p.y(), p.z());
     }
@@ -213,7 +217,7 @@ cv::Mat averageDepth2x2(const cv::Mat& depth) {
 }
 
 cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& p) {
-  cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F, cv::Scalar(0));
+  cv::Mat out(depth.rows / 2, depth.cols / 2, CV_32F);  // every pixel written below
   for (int v = 0; v < out.rows; ++v) {
     const float* r0 = depth.ptr<float>(2 * v);
     const float* r1 = depth.ptr<float>(2 * v + 1);
@@ -224,6 +228,7 @@ cv::Mat downsampleDepth(const cv::Mat& depth, const PreprocessParams& p) {
       for (float x : z) {
         if (x > 0) zmin = std::min(zmin, x);
       }
+      o[u] = 0.0f;
       if (zmin >= 1e9f) continue;
       // Values further than a depth discontinuity (edge_jump_sigmas) from
       // the nearest are another surface. DESIGN: a tighter cut (3 sigma)
