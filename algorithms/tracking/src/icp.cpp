@@ -124,8 +124,34 @@ inline int nearestPixel(float x, int size) {
   return y >= 0.0f && y < static_cast<float>(size) ? static_cast<int>(y) : -1;
 }
 
-void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Isometry3f& T,
-                const TrackingParams& params, int stride, int v_begin, int v_end, Accumulation& acc) {
+// A frame pixel of the point-to-plane term: camera-frame point, normal and
+// confidence.
+struct FramePoint {
+  float p[3], n[3];
+  float conf;
+};
+
+// The pixels of rows [v_begin, v_end) at `stride` with depth, a normal and
+// confidence, gathered once per level and frame (as the photometric
+// reference points are).
+void gatherFrame(const FrameLevel& level, int stride, int v_begin, int v_end, std::vector<FramePoint>& out) {
+  out.clear();
+  for (int v = v_begin; v < v_end; v += stride) {
+    const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
+    const auto* nrow = level.normal.ptr<cv::Vec3f>(v);
+    const float* crow = level.confidence.ptr<float>(v);
+    for (int u = 0; u < level.vertex.cols; u += stride) {
+      const cv::Vec3f& pc = vrow[u];
+      if (pc[2] <= 0 || crow[u] <= 0) continue;
+      const cv::Vec3f& nc = nrow[u];
+      if (nc[0] == 0 && nc[1] == 0 && nc[2] == 0) continue;
+      out.push_back({{pc[0], pc[1], pc[2]}, {nc[0], nc[1], nc[2]}, crow[u]});
+    }
+  }
+}
+
+void accumulate(const std::vector<FramePoint>& points, const ModelView& model, const Eigen::Isometry3f& T,
+                const TrackingParams& params, Accumulation& acc) {
   const Eigen::Isometry3f T_ref_world = model.T_world_cam.inverse();
   const Eigen::Isometry3f T_ref_cam = T_ref_world * T;
   const float max_d = static_cast<float>(params.max_correspondence_distance_m);
@@ -136,41 +162,32 @@ void accumulate(const FrameLevel& level, const ModelView& model, const Eigen::Is
   const float cx = static_cast<float>(mc.cx), cy = static_cast<float>(mc.cy);
   const int mw = mc.width, mh = mc.height;
   const Eigen::Matrix3f R = T.linear();
-  for (int v = v_begin; v < v_end; v += stride) {
-    const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
-    const auto* nrow = level.normal.ptr<cv::Vec3f>(v);
-    const float* crow = level.confidence.ptr<float>(v);
-    for (int u = 0; u < level.vertex.cols; u += stride) {
-      const cv::Vec3f& pc = vrow[u];
-      if (pc[2] <= 0 || crow[u] <= 0) continue;
-      const cv::Vec3f& nc = nrow[u];
-      if (nc[0] == 0 && nc[1] == 0 && nc[2] == 0) continue;
-      const Eigen::Vector3f p_cam(pc[0], pc[1], pc[2]);
-      const Eigen::Vector3f p_ref = T_ref_cam * p_cam;
-      if (p_ref.z() <= 0) continue;
-      const float inv_z = 1.0f / p_ref.z();
-      const int mu = nearestPixel(fx * p_ref.x() * inv_z + cx, mw);
-      const int mv = nearestPixel(fy * p_ref.y() * inv_z + cy, mh);
-      if (mu < 0 || mv < 0) continue;
-      const cv::Vec3f& qn = model.normal_world.ptr<cv::Vec3f>(mv)[mu];
-      if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
-      const cv::Vec3f& qv = model.vertex_world.ptr<cv::Vec3f>(mv)[mu];
-      const Eigen::Vector3f q(qv[0], qv[1], qv[2]), n(qn[0], qn[1], qn[2]);
-      const Eigen::Vector3f x = T * p_cam;
-      if ((x - q).squaredNorm() > max_d * max_d) continue;
-      const Eigen::Vector3f n_obs = R * Eigen::Vector3f(nc[0], nc[1], nc[2]);
-      const float cos_n = n_obs.dot(n);
-      if (cos_n < cos_max) continue;
-      const float r = n.dot(x - q);
-      const float ar = std::abs(r);
-      const float w_robust = ar <= huber ? 1.0f : huber / ar;
-      // w(p): observation confidence and normal consistency.
-      const Eigen::Vector3f xn = x.cross(n);
-      const float J[6] = {xn.x(), xn.y(), xn.z(), n.x(), n.y(), n.z()};
-      acc.eq.add(J, crow[u] * cos_n * w_robust, r);
-      acc.sq_sum += static_cast<double>(r) * r;
-      ++acc.inliers;
-    }
+  for (const FramePoint& fp : points) {
+    const Eigen::Vector3f p_cam(fp.p[0], fp.p[1], fp.p[2]);
+    const Eigen::Vector3f p_ref = T_ref_cam * p_cam;
+    if (p_ref.z() <= 0) continue;
+    const float inv_z = 1.0f / p_ref.z();
+    const int mu = nearestPixel(fx * p_ref.x() * inv_z + cx, mw);
+    const int mv = nearestPixel(fy * p_ref.y() * inv_z + cy, mh);
+    if (mu < 0 || mv < 0) continue;
+    const cv::Vec3f& qn = model.normal_world.ptr<cv::Vec3f>(mv)[mu];
+    if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
+    const cv::Vec3f& qv = model.vertex_world.ptr<cv::Vec3f>(mv)[mu];
+    const Eigen::Vector3f q(qv[0], qv[1], qv[2]), n(qn[0], qn[1], qn[2]);
+    const Eigen::Vector3f x = T * p_cam;
+    if ((x - q).squaredNorm() > max_d * max_d) continue;
+    const Eigen::Vector3f n_obs = R * Eigen::Vector3f(fp.n[0], fp.n[1], fp.n[2]);
+    const float cos_n = n_obs.dot(n);
+    if (cos_n < cos_max) continue;
+    const float r = n.dot(x - q);
+    const float ar = std::abs(r);
+    const float w_robust = ar <= huber ? 1.0f : huber / ar;
+    // w(p): observation confidence and normal consistency.
+    const Eigen::Vector3f xn = x.cross(n);
+    const float J[6] = {xn.x(), xn.y(), xn.z(), n.x(), n.y(), n.z()};
+    acc.eq.add(J, fp.conf * cos_n * w_robust, r);
+    acc.sq_sum += static_cast<double>(r) * r;
+    ++acc.inliers;
   }
   acc.eq.flush();
 }
@@ -301,6 +318,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     const int pl = l == finest && !frame.levels[0].intensity.empty() && use_photometric &&
                            !reference.frame->levels[0].intensity.empty() ? 0 : l;
     const bool photometric = use_photometric && static_cast<size_t>(l) < reference.frame->levels.size();
+    std::array<std::vector<FramePoint>, kChunks> frame_points;
+    forBands(frame.levels[l].vertex.rows, stride, parallel,
+             [&](int c, int v0, int v1) { gatherFrame(frame.levels[l], stride, v0, v1, frame_points[c]); });
     std::array<std::vector<RefPoint>, kChunks> ref_points;
     if (photometric) {
       const FrameLevel& ref = reference.frame->levels[pl];
@@ -313,9 +333,12 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
       const Eigen::Isometry3f Tf = T.cast<float>();
-      accumulateBands(frame.levels[l].vertex.rows, stride, parallel, acc, [&](int v0, int v1, Accumulation& a) {
-        accumulate(frame.levels[l], model[l], Tf, params, stride, v0, v1, a);
-      });
+      {
+        std::array<Accumulation, kChunks> part;
+        forBands(frame.levels[l].vertex.rows, stride, parallel,
+                 [&](int c, int, int) { accumulate(frame_points[c], model[l], Tf, params, part[c]); });
+        for (const auto& p : part) acc.merge(p);
+      }
       ++result.iterations;
       if (l == finest) {
         last = acc;  // geometry only: the photometric terms are added below
@@ -349,7 +372,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     const Eigen::Isometry3f Tf = T.cast<float>();
     accumulateBands(frame.levels[finest].vertex.rows, final_stride, parallel, last,
                     [&](int v0, int v1, Accumulation& a) {
-                      accumulate(frame.levels[finest], model[finest], Tf, params, final_stride, v0, v1, a);
+                      std::vector<FramePoint> points;
+                      gatherFrame(frame.levels[finest], final_stride, v0, v1, points);
+                      accumulate(points, model[finest], Tf, params, a);
                     });
   }
   last.inliers *= final_stride * final_stride;
