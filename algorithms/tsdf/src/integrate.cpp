@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 namespace hxmap::alg {
 
@@ -44,10 +45,11 @@ struct PackedDepth {
     uint8_t rgb[4];  // the fourth byte is padding
   };
   int level = 0, width = 0, height = 0;
-  std::vector<Pixel> pixels;
+  std::unique_ptr<Pixel[]> pixels;  // every pixel written by packObservation (no zero fill first)
   // Projection onto the packed grid: sample (u, v) is pixel (u, v) << level.
   float fx = 0, fy = 0, cx = 0, cy = 0;
   const Pixel& at(int u, int v) const { return pixels[static_cast<size_t>(v) * width + u]; }
+  const Pixel* data() const { return pixels.get(); }
 };
 
 // Confidence may come at a pyramid level of the depth: pixel (u, v) reads
@@ -69,7 +71,7 @@ PackedDepth packObservation(const TsdfMap& map, const DepthObservation& obs) {
   out.fy = static_cast<float>(obs.camera.fy) * scale;
   out.cx = static_cast<float>(obs.camera.cx) * scale;
   out.cy = static_cast<float>(obs.camera.cy) * scale;
-  out.pixels.resize(static_cast<size_t>(out.width) * out.height);
+  out.pixels.reset(new PackedDepth::Pixel[static_cast<size_t>(out.width) * out.height]);
   const float max_depth = static_cast<float>(map.params().max_integration_depth_m);
   const float min_conf = static_cast<float>(map.params().min_confidence);
   const bool has_conf = !obs.confidence.empty(), has_rgb = !obs.rgb.empty();
@@ -90,7 +92,10 @@ PackedDepth packObservation(const TsdfMap& map, const DepthObservation& obs) {
         o[u].rgb[0] = k[0];
         o[u].rgb[1] = k[1];
         o[u].rgb[2] = k[2];
+      } else {
+        o[u].rgb[0] = o[u].rgb[1] = o[u].rgb[2] = 0;
       }
+      o[u].rgb[3] = 0;
     }
   }
   return out;
@@ -231,6 +236,10 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
   const float Wf = static_cast<float>(img.width), Hf = static_cast<float>(img.height);
   const bool has_rgb = !obs.rgb.empty();
   const Eigen::Vector3f dx = R.col(0) * vs, dy = R.col(1) * vs, dz = R.col(2) * vs;
+  // Read through a plain pointer: the compiler cannot tell the vector's
+  // own pointer apart from the voxels written in the loop.
+  const PackedDepth::Pixel* const pixels = img.data();
+  const int width = img.width;
   std::atomic<size_t> updated{0};
   parallel(blocks.size(), [&](size_t begin, size_t end) {
     size_t local_updates = 0;
@@ -261,16 +270,20 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
           float tsdf[kBlockSide] = {}, w[kBlockSide] = {};
           const uint8_t* rgb[kBlockSide];
           bool any = false;
+          // DESIGN: no branch per voxel. Whether a voxel is in the image, in
+          // front of its pixel's surface or behind it varies from voxel to
+          // voxel along the band; as branches these mispredicted often.
+          // Voxels outside the image read pixel 0 and are masked.
           for (int x = 0; x < kBlockSide; ++x) {
-            if (!(pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < Wf && vf[x] < Hf)) continue;
-            const int u = static_cast<int>(uf[x]), v = static_cast<int>(vf[x]);
-            const PackedDepth::Pixel& px = img.at(u, v);
+            const bool in = pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < Wf && vf[x] < Hf;
+            const int u = static_cast<int>(in ? uf[x] : 0.0f), v = static_cast<int>(in ? vf[x] : 0.0f);
+            const PackedDepth::Pixel& px = pixels[v * width + u];
             const float sdf = px.depth_m - pz[x];
-            if (!(px.depth_m > 0.0f) || sdf < -mu) continue;
-            tsdf[x] = std::min(sdf, mu);
-            w[x] = px.confidence;
+            const bool ok = in & (px.depth_m > 0.0f) & (sdf >= -mu);
+            tsdf[x] = ok ? std::min(sdf, mu) : 0.0f;
+            w[x] = ok ? px.confidence : 0.0f;
             rgb[x] = px.rgb;
-            any = true;
+            any |= ok;
           }
           if (!any) continue;
           if constexpr (kRemove) {
