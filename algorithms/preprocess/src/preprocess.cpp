@@ -4,6 +4,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "hxmap/core/simd.hpp"
+
 namespace hxmap::alg {
 
 namespace {
@@ -20,6 +22,21 @@ inline float expNeg(float x) {
   e *= e;
   e *= e;
   return e * e;
+}
+
+// One tap of the filter over a row: for u in [u0, u1), neighbour zn[u] of
+// centre zc[u] with spatial weight ws.
+HXMAP_SIMD_CLONES void addTap(const float* zc, const float* zn, const float* inv2, float ws, int u0, int u1, float* sum,
+                              float* wsum) {
+  for (int u = u0; u < u1; ++u) {
+    const float n = zn[u];
+    const float d = n - zc[u];
+    const float x = d * d * inv2[u];
+    const float e = ws * expNeg(x);  // computed for every tap: no branch
+    const float w = (n > 0.0f) & (x <= kRangeCut) ? e : 0.0f;
+    sum[u] += w * n;
+    wsum[u] += w;
+  }
 }
 
 }  // namespace
@@ -57,20 +74,7 @@ cv::Mat bilateralDepth(const cv::Mat& depth, const PreprocessParams& p, const Pa
         for (int dx = -r; dx <= r; ++dx) {
           const float ws = spatial[(dy + r) * (2 * r + 1) + dx + r];
           const int u0 = std::max(0, -dx), u1 = std::min(cols, cols - dx);
-          const float* zc = row;
-          const float* zn = nrow + dx;
-          const float* iv = inv2.data();
-          float* s = sum.data();
-          float* ww = wsum.data();
-          for (int u = u0; u < u1; ++u) {
-            const float n = zn[u];
-            const float d = n - zc[u];
-            const float x = d * d * iv[u];
-            const float e = ws * expNeg(x);  // computed for every tap: no branch
-            const float w = (n > 0.0f) & (x <= kRangeCut) ? e : 0.0f;
-            s[u] += w * n;
-            ww[u] += w;
-          }
+          addTap(row, nrow + dx, inv2.data(), ws, u0, u1, sum.data(), wsum.data());
         }
       }
       float* orow = out.ptr<float>(v);

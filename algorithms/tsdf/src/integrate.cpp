@@ -1,10 +1,13 @@
 #include "hxmap/tsdf/integrate.hpp"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <limits>
 #include <memory>
+
+#include "hxmap/core/simd.hpp"
 
 namespace hxmap::alg {
 
@@ -108,12 +111,20 @@ std::vector<int32_t> allocateBand(TsdfMap& map, const PackedDepth& img, const Ei
   const size_t before = map.blockCount();
   std::vector<int32_t> touched;
   std::vector<uint8_t> mark(map.blockCount(), 0);
-  // Neighbouring samples mostly fall in the block just seen: skip its lookup.
-  BlockKey last_key(std::numeric_limits<int>::min(), 0, 0);
+  // DESIGN: neighbouring samples, in a row and from one row to the next,
+  // mostly fall in blocks touched moments ago. A small direct-mapped set of
+  // the keys touched in this call answers those without the map's hash
+  // table (a third of integration's time went to these lookups when only
+  // the last key was remembered).
+  constexpr int kRecent = 256;
+  std::array<BlockKey, kRecent> recent;
+  recent.fill(BlockKey(std::numeric_limits<int>::min(), 0, 0));
   auto touch = [&](const Eigen::Vector3f& q) {  // q in block units
     const BlockKey key(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()));
-    if (key == last_key) return;
-    last_key = key;
+    BlockKey& slot = recent[static_cast<uint32_t>(key.x() * 73856093 ^ key.y() * 19349663 ^ key.z() * 83492791) &
+                            (kRecent - 1)];
+    if (slot == key) return;  // touched already
+    slot = key;
     const int32_t b = map.findOrAllocate(key);
     if (static_cast<size_t>(b) >= mark.size()) mark.resize(b + 1, 0);
     if (!mark[b]) {
@@ -222,6 +233,76 @@ inline void removeObservation(VoxelBlock& blk, int i, float tsdf, float w, float
   --st.updates;
 }
 
+// What a row of voxels needs to find its pixels.
+struct RowLookup {
+  Eigen::Vector3f dx, dy, dz;  // one voxel along x, y, z, in the camera frame
+  float fx, fy, cx, cy, Wf, Hf, mu;
+  const PackedDepth::Pixel* pixels;  // a plain pointer: the compiler cannot
+  int width;                         // tell a vector's own apart from voxels
+};
+
+// A row of 8 voxels starting at p0 (camera frame): truncated SDF, weight
+// (0: not updated) and pixel color of each; false when none is updated.
+// Projection first (vectorizable), then the lookups. Nearest sample:
+// floor(x + 0.5) by truncation once x + 0.5 >= 0. Voxels behind the camera
+// give inf/NaN in the projection, rejected by the z test.
+inline bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[kBlockSide], float w[kBlockSide],
+                      const uint8_t* rgb[kBlockSide]) {
+  float pz[kBlockSide], uf[kBlockSide], vf[kBlockSide];
+  for (int x = 0; x < kBlockSide; ++x) {
+    const float k = static_cast<float>(x);
+    const float px = p0.x() + k * c.dx.x(), py = p0.y() + k * c.dx.y();
+    pz[x] = p0.z() + k * c.dx.z();
+    const float inv_z = 1.0f / pz[x];
+    uf[x] = c.fx * px * inv_z + c.cx + 0.5f;
+    vf[x] = c.fy * py * inv_z + c.cy + 0.5f;
+  }
+  // DESIGN: no branch per voxel. Whether a voxel is in the image, in front
+  // of its pixel's surface or behind it varies from voxel to voxel along the
+  // band; as branches these mispredicted often. Voxels outside the image
+  // read pixel 0 and are masked.
+  bool any = false;
+  for (int x = 0; x < kBlockSide; ++x) {
+    const bool in = pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < c.Wf && vf[x] < c.Hf;
+    const int u = static_cast<int>(in ? uf[x] : 0.0f), v = static_cast<int>(in ? vf[x] : 0.0f);
+    const PackedDepth::Pixel& px = c.pixels[v * c.width + u];
+    const float sdf = px.depth_m - pz[x];
+    const bool ok = in & (px.depth_m > 0.0f) & (sdf >= -c.mu);
+    tsdf[x] = ok ? std::min(sdf, c.mu) : 0.0f;
+    w[x] = ok ? px.confidence : 0.0f;
+    rgb[x] = px.rgb;
+    any |= ok;
+  }
+  return any;
+}
+
+// Fuses the observation into one block whose first voxel center is
+// origin_cam (camera frame); returns the voxels updated. A row of 8 voxels
+// at a time: lookups, geometry (vectorizable), then color and statistics
+// for the voxels inside the band.
+HXMAP_SIMD_CLONES size_t fuseBlock(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
+                                   float max_w, bool has_rgb) {
+  size_t updates = 0;
+  for (int z = 0; z < kBlockSide; ++z) {
+    for (int y = 0; y < kBlockSide; ++y) {
+      const Eigen::Vector3f p0 = origin_cam + c.dz * static_cast<float>(z) + c.dy * static_cast<float>(y);
+      const int i0 = VoxelBlock::index(0, y, z);
+      float tsdf[kBlockSide], w[kBlockSide];
+      const uint8_t* rgb[kBlockSide];
+      if (!lookupRow(c, p0, tsdf, w, rgb)) continue;
+      float a[kBlockSide];
+      for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
+      for (int x = 0; x < kBlockSide; ++x) {
+        if (w[x] <= 0.0f) continue;
+        ++updates;
+        if (tsdf[x] >= c.mu) continue;
+        fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
+      }
+    }
+  }
+  return updates;
+}
+
 template <bool kRemove>
 IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, const ParallelFor& parallel) {
   IntegrationStats stats;
@@ -232,14 +313,11 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
   const Eigen::Matrix3f R = T_cam_world.linear();
   const float vs = map.voxelSize(), mu = map.truncation();
   const float max_w = static_cast<float>(map.params().max_weight);
-  const float fx = img.fx, fy = img.fy, cx = img.cx, cy = img.cy;
-  const float Wf = static_cast<float>(img.width), Hf = static_cast<float>(img.height);
   const bool has_rgb = !obs.rgb.empty();
-  const Eigen::Vector3f dx = R.col(0) * vs, dy = R.col(1) * vs, dz = R.col(2) * vs;
-  // Read through a plain pointer: the compiler cannot tell the vector's
-  // own pointer apart from the voxels written in the loop.
-  const PackedDepth::Pixel* const pixels = img.data();
-  const int width = img.width;
+  const RowLookup c{R.col(0) * vs, R.col(1) * vs, R.col(2) * vs,
+                    img.fx, img.fy, img.cx, img.cy,
+                    static_cast<float>(img.width), static_cast<float>(img.height), mu,
+                    img.data(), img.width};
   std::atomic<size_t> updated{0};
   parallel(blocks.size(), [&](size_t begin, size_t end) {
     size_t local_updates = 0;
@@ -248,59 +326,21 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
       VoxelBlock& block = map.block(b);
       const Eigen::Vector3f origin_world = (map.key(b) * kBlockSide).cast<float>() * vs + Eigen::Vector3f::Constant(0.5f * vs);
       const Eigen::Vector3f origin_cam = T_cam_world * origin_world;
-      for (int z = 0; z < kBlockSide; ++z) {
-        for (int y = 0; y < kBlockSide; ++y) {
-          const Eigen::Vector3f p0 = origin_cam + dz * static_cast<float>(z) + dy * static_cast<float>(y);
-          const int i0 = VoxelBlock::index(0, y, z);
-          // A row of 8 voxels in three passes: project (vectorizable), look
-          // up depth and confidence (scalar gathers), fuse geometry
-          // (vectorizable); then color and statistics for the voxels inside
-          // the band. Nearest sample: floor(x + 0.5) by truncation once
-          // x + 0.5 >= 0. Voxels behind the camera give inf/NaN in the
-          // projection, rejected by the z test.
-          float pz[kBlockSide], uf[kBlockSide], vf[kBlockSide];
-          for (int x = 0; x < kBlockSide; ++x) {
-            const float k = static_cast<float>(x);
-            const float px = p0.x() + k * dx.x(), py = p0.y() + k * dx.y();
-            pz[x] = p0.z() + k * dx.z();
-            const float inv_z = 1.0f / pz[x];
-            uf[x] = fx * px * inv_z + cx + 0.5f;
-            vf[x] = fy * py * inv_z + cy + 0.5f;
-          }
-          float tsdf[kBlockSide] = {}, w[kBlockSide] = {};
-          const uint8_t* rgb[kBlockSide];
-          bool any = false;
-          // DESIGN: no branch per voxel. Whether a voxel is in the image, in
-          // front of its pixel's surface or behind it varies from voxel to
-          // voxel along the band; as branches these mispredicted often.
-          // Voxels outside the image read pixel 0 and are masked.
-          for (int x = 0; x < kBlockSide; ++x) {
-            const bool in = pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < Wf && vf[x] < Hf;
-            const int u = static_cast<int>(in ? uf[x] : 0.0f), v = static_cast<int>(in ? vf[x] : 0.0f);
-            const PackedDepth::Pixel& px = pixels[v * width + u];
-            const float sdf = px.depth_m - pz[x];
-            const bool ok = in & (px.depth_m > 0.0f) & (sdf >= -mu);
-            tsdf[x] = ok ? std::min(sdf, mu) : 0.0f;
-            w[x] = ok ? px.confidence : 0.0f;
-            rgb[x] = px.rgb;
-            any |= ok;
-          }
-          if (!any) continue;
-          if constexpr (kRemove) {
+      if constexpr (!kRemove) {
+        local_updates += fuseBlock(c, block, origin_cam, max_w, has_rgb);
+      } else {
+        for (int z = 0; z < kBlockSide; ++z) {
+          for (int y = 0; y < kBlockSide; ++y) {
+            const Eigen::Vector3f p0 = origin_cam + c.dz * static_cast<float>(z) + c.dy * static_cast<float>(y);
+            const int i0 = VoxelBlock::index(0, y, z);
+            float tsdf[kBlockSide], w[kBlockSide];
+            const uint8_t* rgb[kBlockSide];
+            if (!lookupRow(c, p0, tsdf, w, rgb)) continue;
             for (int x = 0; x < kBlockSide; ++x) {
               if (w[x] <= 0.0f) continue;
               ++local_updates;
               removeObservation(block, i0 + x, tsdf[x], w[x], mu, has_rgb ? rgb[x] : nullptr);
             }
-            continue;
-          }
-          float a[kBlockSide];
-          for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
-          for (int x = 0; x < kBlockSide; ++x) {
-            if (w[x] <= 0.0f) continue;
-            ++local_updates;
-            if (tsdf[x] >= mu) continue;
-            fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
           }
         }
       }
