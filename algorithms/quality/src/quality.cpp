@@ -37,31 +37,26 @@ namespace {
 struct BlockSamples {
   BlockKey key;
   uint32_t n = 0;
-  uint32_t novelty_n = 0, photo_n = 0;
+  uint32_t novelty_n = 0, photo_n = 0, good_n = 0;
   float novelty_sum = 0, boundary_sum = 0, signed_sum = 0, abs_sum = 0, photo_sum = 0;
 };
 
-// Over the voxels within one voxel of the surface: the share not yet
-// consolidated, and the pooled standard deviation of their SDF observations.
+// The pooled standard deviation of the SDF observations (each voxel's
+// Welford statistics) of the voxels within one voxel of the surface.
 // (The standard error of the fused value, sigma / sqrt(n), was measured
 // too: it ranks a far, much-seen clean wall with a noisy patch, 0.12 vs 0.12
 // normalized on the quality room, where sigma gives 0.19 vs 0.51.)
-void scanBlock(const VoxelBlock& block, float voxel_m, float consolidated_weight, float& fresh_share, float& sigma_m) {
-  int surface = 0, fresh = 0;
+float surfaceSigma(const VoxelBlock& block, float voxel_m) {
   double m2 = 0, dof = 0;
   for (int i = 0; i < kBlockVoxels; ++i) {
     const VoxelGeometry& g = block.geo[i];
-    if (!(g.weight > 0.0f)) continue;
-    if (std::abs(g.sdf_m) >= voxel_m) continue;
-    ++surface;
-    fresh += g.weight < consolidated_weight;
+    if (!(g.weight > 0.0f) || std::abs(g.sdf_m) >= voxel_m) continue;
     const VoxelStats& s = block.stats[i];
     if (s.updates < 2) continue;
     m2 += s.m2;
     dof += s.updates - 1;
   }
-  fresh_share = surface > 0 ? static_cast<float>(fresh) / static_cast<float>(surface) : 0.0f;
-  sigma_m = dof > 0 ? static_cast<float>(std::sqrt(m2 / dof)) : 0.0f;
+  return dof > 0 ? static_cast<float>(std::sqrt(m2 / dof)) : 0.0f;
 }
 
 float blend(float old_value, float value, float s, bool first) { return first ? value : old_value + s * (value - old_value); }
@@ -85,6 +80,7 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const Eigen::Matrix3f R = kf.T_world_cam.linear();
   const Eigen::Vector3f t = kf.T_world_cam.translation();
   const float inv_bs = 1.0f / map.blockSize();
+  const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
 
   std::vector<BlockSamples> acc;
   std::unordered_map<uint64_t, uint32_t> slot_of;
@@ -137,6 +133,10 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
       a.abs_sum += std::abs(e);
       if (has_normals) {
         const cv::Vec3f nf = f.normal.ptr<cv::Vec3f>(v)[u];
+        if (nf[2] != 0.0f) {  // a usable view: the normal against the pixel's ray
+          const Eigen::Vector3f ray = f.camera.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
+          a.good_n += std::abs(nf[0] * ray.x() + nf[1] * ray.y() + nf[2] * ray.z()) >= cos_good * ray.norm();
+        }
         const cv::Vec3f nm = m.normal_world.ptr<cv::Vec3f>(v)[u];
         if (nf[2] != 0.0f && (nm[0] != 0.0f || nm[1] != 0.0f || nm[2] != 0.0f)) {
           const Eigen::Vector3f nfw = R * Eigen::Vector3f(nf[0], nf[1], nf[2]);
@@ -165,11 +165,12 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
     const bool first = q.views == 0;
     const float inv_n = 1.0f / static_cast<float>(a.n);
 
-    float fresh = 0, sigma = 0;
+    const uint32_t min_samples = static_cast<uint32_t>(std::max(1, params_.min_samples));
+    q.good_views += a.good_n >= min_samples;
+    const float views_needed = static_cast<float>(std::max(1, params_.consolidated_views));
+    q.coverage_new = std::max(0.0f, 1.0f - static_cast<float>(q.good_views) / views_needed);
     const int32_t b = map.find(a.key);
-    if (b >= 0) scanBlock(map.block(b), voxel_m, static_cast<float>(params_.consolidated_weight), fresh, sigma);
-    q.coverage_new = fresh;
-    q.sigma_tsdf_m = sigma;
+    q.sigma_tsdf_m = b >= 0 ? surfaceSigma(map.block(b), voxel_m) : 0.0f;
 
     if (a.novelty_n > 0) {
       q.normal_novelty = blend(q.normal_novelty, a.novelty_sum / static_cast<float>(a.novelty_n), s, first);

@@ -125,6 +125,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("smoothing", q.smoothing, 0, 1);
   v.number("alpha_coverage", q.alpha_coverage, 0, kBig);
   v.number("alpha_normal", q.alpha_normal, 0, kBig);
+  v.integer("consolidated_views", q.consolidated_views, 1, 1000);
+  v.number("max_view_incidence_deg", q.max_view_incidence_deg, 0, 90);
   v.number("w_explicit", q.w_explicit, 0, kBig);
   v.number("w_implicit", q.w_implicit, 0, kBig);
   v.number("beta_depth_var", q.beta_depth_var, 0, kBig);

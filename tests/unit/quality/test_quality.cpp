@@ -161,17 +161,29 @@ std::vector<BlockScore> fuseAndScore(TsdfMap& map, QualityMap& quality, const st
 TEST(Quality, CgnFiresOnSurfaceSeenOnceAndNotOnAConsolidatedWall) {
   TsdfMap map(tsdfParams());
   QualityMap quality(qualityParams());
-  // Ten frames see only the left half (x < 0); the keyframe sees it all.
+  // Four keyframes see only the left half (x < 0) head on; the fifth sees it all.
   const cv::Mat left = depthImage([](int u, int) { return pixelX(u, kWallZ) < 0.0f ? kWallZ : 0.0f; });
   const cv::Mat full = depthImage([](int, int) { return kWallZ; });
-  const auto scores = fuseAndScore(map, quality, std::vector<cv::Mat>(10, left), full);
+  for (uint32_t id = 0; id < 5; ++id) {
+    const cv::Mat& d = id < 4 ? left : full;
+    integrate(map, {d, cv::Mat(), cv::Mat(), kCam, Eigen::Isometry3f::Identity()});
+    const ModelView model = raycast(map, kCam, Eigen::Isometry3f::Identity(), RaycastParams{});
+    const FrameLevel f = frameLevel(d);
+    quality.update(map, {id, Eigen::Isometry3f::Identity(), &f, &model});
+  }
+  const auto scores = quality.score(map.truncation());
   int n_new = 0, n_old = 0;
   const float fresh = meanRaw(scores, kCgn, [](const BlockKey& k) { return k.z() == 12 && k.x() >= 1 && k.x() <= 5; }, &n_new);
   const float old = meanRaw(scores, kCgn, [](const BlockKey& k) { return k.z() == 12 && k.x() <= -2 && k.x() >= -6; }, &n_old);
   ASSERT_GT(n_new, 0);
   ASSERT_GT(n_old, 0);
-  EXPECT_GT(fresh, 0.45f);  // alpha_c * (all surface voxels fresh) = 0.5, plus a little novelty
-  EXPECT_LT(old, 0.05f);
+  // alpha_c * (1 - 1/3 usable views) = 0.33 where one keyframe saw the wall,
+  // plus a little normal novelty; 0 where five did.
+  EXPECT_NEAR(fresh, 0.5f * (1.0f - 1.0f / 3.0f), 0.03f);
+  EXPECT_LT(old, 0.02f);
+  const BlockQuality* seen_once = quality.find(BlockKey(3, 0, 12));
+  ASSERT_NE(seen_once, nullptr);
+  EXPECT_EQ(seen_once->good_views, 1u);
 }
 
 TEST(Quality, UfFiresOnNoisyDepthAndNotOnACleanWall) {

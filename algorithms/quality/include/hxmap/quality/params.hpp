@@ -16,7 +16,7 @@ struct QualityParams {
   /// share and mismatch of a block (exponential average over keyframes).
   double smoothing = 0.5;
 
-  double alpha_coverage = 0.5;  ///< CGN (eq 2): share of newly covered (not yet consolidated) voxels
+  double alpha_coverage = 0.5;  ///< CGN (eq 2): how newly covered the block is (few usable views yet)
   double alpha_normal = 0.5;    ///< CGN: normal novelty 1 - cos
   double w_explicit = 0.5;      ///< UF (eq 3): sigma_TSDF
   double w_implicit = 0.5;      ///< UF: sigma_Neural, where a neural field exists
@@ -24,9 +24,11 @@ struct QualityParams {
   double beta_boundary = 0.5;   ///< OBG: share of samples on occlusion boundaries
   double gamma_photometric = 0.5;  ///< RM (eq 5): |I_input - I_render|, intensity in [0, 1]
   double gamma_depth = 0.5;        ///< RM: |z_input - z_render|
-  /// A surface voxel counts as consolidated (no longer newly covered) from
-  /// this fused weight on (weights sum per-pixel confidences in [0, 1]).
-  double consolidated_weight = 4.0;
+  /// A block counts as covered (C_new = 0) once this many keyframes saw it
+  /// at an incidence below max_view_incidence_deg (each with min_samples
+  /// such samples); before, C_new = 1 - usable views / consolidated_views.
+  int consolidated_views = 3;
+  double max_view_incidence_deg = 75.0;
   /// A keyframe flags a block as on an occlusion boundary (B_occ = 1) when
   /// this share of its samples lies next to a depth jump (less: in proportion).
   double boundary_full_share = 0.1;
