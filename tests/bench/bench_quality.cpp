@@ -153,7 +153,6 @@ int main(int argc, char** argv) {
     }
   }
   if (csv) std::fclose(csv);
-  }
   std::printf("quality room: %zu frames, %zu keyframes, %zu blocks scored, %zu known-bad, %zu chosen in %zu ROIs "
               "(top_fraction %.2f, max_blocks %d)\n",
               frames.size(), fe.keyframes(), fe.blockScores().size(), bad, chosen.size(), fe.rois().size(),
@@ -185,6 +184,7 @@ int main(int argc, char** argv) {
                   k ? 100.0 * static_cast<double>(hit) / static_cast<double>(k) : 0.0,
                   bad ? 100.0 * static_cast<double>(hit) / static_cast<double>(bad) : 0.0);
     }
+  }
   std::printf("  quality stage per keyframe on this run: median %.2f ms\n", median(quality_ms));
 
   // Cost on the TUM slice, one core, every frame a keyframe.
