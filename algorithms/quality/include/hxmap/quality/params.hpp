@@ -24,9 +24,10 @@ struct QualityParams {
   double beta_boundary = 0.5;   ///< OBG: share of samples on occlusion boundaries
   double gamma_photometric = 0.5;  ///< RM (eq 5): |I_input - I_render|, intensity in [0, 1]
   double gamma_depth = 0.5;        ///< RM: |z_input - z_render|
-  /// A block counts as covered (C_new = 0) once this many keyframes saw it
-  /// at an incidence below max_view_incidence_deg (each with min_samples
-  /// such samples); before, C_new = 1 - usable views / consolidated_views.
+  /// A block counts as covered (C_new = 0) once this many keyframes saw the
+  /// map's surface in it at an incidence below max_view_incidence_deg (each
+  /// with min_samples such pixels, the model's normal against the ray);
+  /// before, C_new = 1 - usable views / consolidated_views.
   int consolidated_views = 3;
   double max_view_incidence_deg = 75.0;
   /// A keyframe flags a block as on an occlusion boundary (B_occ = 1) when
