@@ -121,8 +121,9 @@ std::vector<int32_t> allocateBand(TsdfMap& map, const PackedDepth& img, const Ei
   recent.fill(BlockKey(std::numeric_limits<int>::min(), 0, 0));
   auto touch = [&](const Eigen::Vector3f& q) {  // q in block units
     const BlockKey key(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()));
-    BlockKey& slot = recent[static_cast<uint32_t>(key.x() * 73856093 ^ key.y() * 19349663 ^ key.z() * 83492791) &
-                            (kRecent - 1)];
+    const uint32_t h = static_cast<uint32_t>(key.x()) * 73856093u ^ static_cast<uint32_t>(key.y()) * 19349663u ^
+                       static_cast<uint32_t>(key.z()) * 83492791u;  // unsigned: wraps, no overflow
+    BlockKey& slot = recent[h & (kRecent - 1)];
     if (slot == key) return;  // touched already
     slot = key;
     const int32_t b = map.findOrAllocate(key);
