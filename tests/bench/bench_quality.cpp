@@ -15,9 +15,11 @@
 // 2. Cost: scoring + ROI extraction per keyframe on the shared TUM slice at
 //    640x480, one core, every frame made a keyframe; median in ms.
 //
-//   bench_quality [quality_sequence_dir] [tum_dir]
-// Without a sequence folder the quality room is rendered in memory (about
-// 20 s on one core). Prints numbers; asserts nothing.
+//   bench_quality [quality_sequence_dir|-] [tum_dir] [inspect|sweep]
+// Without a sequence folder (or with "-") the quality room is rendered in
+// memory (about 20 s on one core) along the given trajectory: "inspect"
+// (default) or "sweep", a second path past the same wall to check that
+// what was tuned on one holds on the other. Prints numbers; asserts nothing.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -97,7 +99,8 @@ std::unordered_set<uint64_t> wellObserved(const drv::SyntheticScene& scene, cons
 int main(int argc, char** argv) {
   const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
   test::BenchSequence seq;
-  if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq)) return 2;
+  const std::string trajectory = argc > 3 ? argv[3] : "inspect";
+  if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq, trajectory)) return 2;
   const std::vector<RgbdFrame>& frames = seq.frames;
   const Trajectory& gt = seq.ground_truth;
   const alg::PinholeCamera& cam = seq.camera;

@@ -42,13 +42,14 @@ inline bool loadDatasetSequence(const std::string& dir, BenchSequence& out) {
 
 /// `dir` empty or "-": render. False (the reason on stderr) when the folder
 /// or one of its frames cannot be read.
-inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out) {
+inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out,
+                                    const std::string& trajectory = "inspect") {
   drv::SyntheticParams sp;
   sp.frames = 240;
-  sp.trajectory = "inspect";
+  sp.trajectory = trajectory;
   out = BenchSequence{};
   if (!dir.empty() && dir != "-") return loadDatasetSequence(dir, out);
-  std::fprintf(stderr, "rendering the quality room (%d frames, inspect trajectory) ...\n", sp.frames);
+  std::fprintf(stderr, "rendering the quality room (%d frames, %s trajectory) ...\n", sp.frames, trajectory.c_str());
   const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
   out.camera = sp.camera;
   out.ground_truth = drv::syntheticTrajectory(sp);
