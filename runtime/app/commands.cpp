@@ -307,7 +307,10 @@ int runCommand(const RunOptions& o) {
                     : fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
     const bool watchdog = sdWatchdogUsec() > 0;
     PlaybackSource playback(loaded, o.fps);
-    FrameSource& source = camera ? static_cast<FrameSource&>(*camera) : playback;
+    // A dataset's frames are already limited above; a camera's here.
+    FrameLimit limited_camera(camera ? static_cast<FrameSource&>(*camera) : playback,
+                              camera ? static_cast<size_t>(std::max(0, max_frames)) : 0);
+    FrameSource& source = camera ? static_cast<FrameSource&>(limited_camera) : playback;
     const RealtimeStats rs = runRealtime(source, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace, [&] {
       if (watchdog) sdNotify("WATCHDOG=1");
     });

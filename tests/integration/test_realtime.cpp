@@ -57,6 +57,32 @@ TEST_F(RealtimeTest, EveryFrameIsProcessedOrCountedAsDropped) {
   for (size_t i = 1; i < s.results.size(); ++i) EXPECT_GT(s.results[i].stamp_ns, s.results[i - 1].stamp_ns);
 }
 
+TEST_F(RealtimeTest, FrameLimitEndsTheStreamAfterItsFrames) {
+  PlaybackSource all(frames_, 1000.0);
+  FrameLimit limited(all, 5);
+  EXPECT_EQ(limited.size(), 5u);
+  size_t n = 0;
+  for (;;) {
+    auto f = limited.next(stop_);
+    ASSERT_TRUE(f) << f.message();
+    if (!*f) break;
+    EXPECT_EQ((*f)->seq, frames_[n].seq);
+    ++n;
+  }
+  EXPECT_EQ(n, 5u);
+  EXPECT_FALSE(*limited.next(stop_)) << "stays at the end";
+  // 0: no limit.
+  PlaybackSource again(frames_, 1000.0);
+  FrameLimit unlimited(again, 0);
+  EXPECT_EQ(unlimited.size(), frames_.size());
+  // Through the runner, as `hxmap run --camera ... --max-frames 5` does.
+  PlaybackSource source(frames_, 20.0);
+  FrameLimit five(source, 5);
+  const RealtimeStats s = runRealtime(five, fe_, options_, stop_);
+  EXPECT_EQ(s.counters.frames_in, 5u);
+  EXPECT_FALSE(s.stopped_early);
+}
+
 TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
   options_.burn_slice_ms = 200;  // four 50 ms periods: never fits
   options_.refine_workers = 2;

@@ -32,6 +32,8 @@
 // the caller can write every output.
 #pragma once
 
+#include <algorithm>
+
 #include <atomic>
 #include <cstdint>
 #include <functional>
@@ -79,6 +81,30 @@ class PlaybackSource : public FrameSource {
   double fps_ = 30;
   size_t next_ = 0;
   int64_t t0_ns_ = 0;
+};
+
+/// At most `max_frames` frames of another source (0: all of them), then the
+/// end of the stream: `hxmap run --max-frames` on a live camera.
+class FrameLimit : public FrameSource {
+ public:
+  FrameLimit(FrameSource& inner, size_t max_frames) : inner_(inner), max_(max_frames) {}
+  Expected<std::optional<RgbdFrame>> next(const std::atomic<bool>& stop) override {
+    if (max_ > 0 && delivered_ >= max_) return std::optional<RgbdFrame>{};
+    auto f = inner_.next(stop);
+    if (f && *f) ++delivered_;
+    return f;
+  }
+  double fps() const override { return inner_.fps(); }
+  size_t size() const override {
+    const size_t n = inner_.size();
+    return max_ == 0 ? n : n == 0 ? max_ : std::min(n, max_);
+  }
+  std::string statsText() const override { return inner_.statsText(); }
+
+ private:
+  FrameSource& inner_;
+  size_t max_ = 0;
+  size_t delivered_ = 0;
 };
 
 struct RealtimeOptions {
