@@ -39,7 +39,10 @@ namespace {
 Expected<HxmapConfig> loadAndPrint(const std::string& path) {
   Expected<HxmapConfig> config = path.empty() ? Expected<HxmapConfig>(HxmapConfig{}) : loadConfig(path);
   if (!config) return config;
-  spdlog::info("effective configuration ({}):\n{}", path.empty() ? "built-in defaults" : path, dumpConfig(*config));
+  // One line at info; the whole effective configuration (a hundred-odd
+  // keys) with -v, and always from `hxmap config`.
+  spdlog::info("configuration: {} (-v prints every key)", path.empty() ? "built-in defaults" : path);
+  spdlog::debug("effective configuration:\n{}", dumpConfig(*config));
   return config;
 }
 
