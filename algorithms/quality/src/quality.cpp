@@ -176,15 +176,15 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
 
   const float s = static_cast<float>(std::clamp(params_.smoothing, 0.0, 1.0));
   const float voxel_m = map.voxelSize();
+  const uint32_t min_samples = static_cast<uint32_t>(std::max(1, params_.min_samples));
+  const float views_needed = static_cast<float>(std::max(1, params_.consolidated_views));
   for (const BlockSamples& a : acc) {
-    if (a.n < static_cast<uint32_t>(std::max(1, params_.min_samples))) continue;
+    if (a.n < min_samples) continue;
     BlockQuality& q = blocks_[pack(a.key)];
     const bool first = q.views == 0;
     const float inv_n = 1.0f / static_cast<float>(a.n);
 
-    const uint32_t min_samples = static_cast<uint32_t>(std::max(1, params_.min_samples));
     q.good_views += a.good_n >= min_samples;
-    const float views_needed = static_cast<float>(std::max(1, params_.consolidated_views));
     q.coverage_new = std::max(0.0f, 1.0f - static_cast<float>(q.good_views) / views_needed);
     const int32_t b = map.find(a.key);
     q.sigma_tsdf_m = b >= 0 ? surfaceSigma(map.block(b), voxel_m) : 0.0f;

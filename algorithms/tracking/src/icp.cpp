@@ -110,10 +110,13 @@ void forBands(int rows, int stride, const ParallelFor& parallel, const Body& bod
   });
 }
 
+// body(band, acc) for each band, in parallel, summed in band order.
 template <typename Body>
-void accumulateBands(int rows, int stride, const ParallelFor& parallel, Accumulation& acc, const Body& body) {
+void accumulateBands(const ParallelFor& parallel, Accumulation& acc, const Body& body) {
   std::array<Accumulation, kChunks> part;
-  forBands(rows, stride, parallel, [&](int c, int v0, int v1) { body(v0, v1, part[c]); });
+  parallel(kChunks, [&](size_t c0, size_t c1) {
+    for (size_t c = c0; c < c1; ++c) body(static_cast<int>(c), part[c]);
+  });
   for (const auto& p : part) acc.merge(p);
 }
 
@@ -148,6 +151,15 @@ void gatherFrame(const FrameLevel& level, int stride, int v_begin, int v_end, st
       out.push_back({{pc[0], pc[1], pc[2]}, {nc[0], nc[1], nc[2]}, crow[u]});
     }
   }
+}
+
+using FrameBands = std::array<std::vector<FramePoint>, kChunks>;
+
+FrameBands gatherFrameBands(const FrameLevel& level, int stride, const ParallelFor& parallel) {
+  FrameBands out;
+  forBands(level.vertex.rows, stride, parallel,
+           [&](int c, int v0, int v1) { gatherFrame(level, stride, v0, v1, out[c]); });
+  return out;
 }
 
 void accumulate(const std::vector<FramePoint>& points, const ModelView& model, const Eigen::Isometry3f& T,
@@ -318,9 +330,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     const int pl = l == finest && !frame.levels[0].intensity.empty() && use_photometric &&
                            !reference.frame->levels[0].intensity.empty() ? 0 : l;
     const bool photometric = use_photometric && static_cast<size_t>(l) < reference.frame->levels.size();
-    std::array<std::vector<FramePoint>, kChunks> frame_points;
-    forBands(frame.levels[l].vertex.rows, stride, parallel,
-             [&](int c, int v0, int v1) { gatherFrame(frame.levels[l], stride, v0, v1, frame_points[c]); });
+    const FrameBands frame_points = gatherFrameBands(frame.levels[l], stride, parallel);
     std::array<std::vector<RefPoint>, kChunks> ref_points;
     if (photometric) {
       const FrameLevel& ref = reference.frame->levels[pl];
@@ -333,12 +343,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
       const Eigen::Isometry3f Tf = T.cast<float>();
-      {
-        std::array<Accumulation, kChunks> part;
-        forBands(frame.levels[l].vertex.rows, stride, parallel,
-                 [&](int c, int, int) { accumulate(frame_points[c], model[l], Tf, params, part[c]); });
-        for (const auto& p : part) acc.merge(p);
-      }
+      accumulateBands(parallel, acc,
+                      [&](int c, Accumulation& a) { accumulate(frame_points[c], model[l], Tf, params, a); });
       ++result.iterations;
       if (l == finest) {
         last = acc;  // geometry only: the photometric terms are added below
@@ -346,11 +352,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       }
       if (acc.inliers < 6) break;
       if (photometric) {
-        std::array<Accumulation, kChunks> part;
-        forBands(reference.frame->levels[pl].depth.rows, photometric_stride, parallel, [&](int c, int, int) {
-          accumulatePhotometric(frame.levels[pl], ref_points[c], Tf, params, part[c]);
+        accumulateBands(parallel, acc, [&](int c, Accumulation& a) {
+          accumulatePhotometric(frame.levels[pl], ref_points[c], Tf, params, a);
         });
-        for (const auto& p : part) acc.merge(p);
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());
@@ -370,12 +374,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   const int final_stride = std::max(1, params.icp_stride_finest);
   if (!have_last) {
     const Eigen::Isometry3f Tf = T.cast<float>();
-    accumulateBands(frame.levels[finest].vertex.rows, final_stride, parallel, last,
-                    [&](int v0, int v1, Accumulation& a) {
-                      std::vector<FramePoint> points;
-                      gatherFrame(frame.levels[finest], final_stride, v0, v1, points);
-                      accumulate(points, model[finest], Tf, params, a);
-                    });
+    const FrameBands points = gatherFrameBands(frame.levels[finest], final_stride, parallel);
+    accumulateBands(parallel, last,
+                    [&](int c, Accumulation& a) { accumulate(points[c], model[finest], Tf, params, a); });
   }
   last.inliers *= final_stride * final_stride;
   result.inliers = last.inliers;

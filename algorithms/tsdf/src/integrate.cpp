@@ -277,30 +277,50 @@ inline bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[
   return any;
 }
 
-// Fuses the observation into one block whose first voxel center is
-// origin_cam (camera frame); returns the voxels updated. A row of 8 voxels
-// at a time: lookups, geometry (vectorizable), then color and statistics
-// for the voxels inside the band.
-HXMAP_SIMD_CLONES size_t fuseBlock(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
-                                   float max_w, bool has_rgb) {
-  size_t updates = 0;
+// Every row of 8 voxels of a block whose first voxel center is origin_cam
+// (camera frame) that the observation updates: body(first voxel index,
+// tsdf, w, rgb) as lookupRow fills them.
+template <typename Body>
+inline void forEachUpdatedRow(const RowLookup& c, const Eigen::Vector3f& origin_cam, const Body& body) {
   for (int z = 0; z < kBlockSide; ++z) {
     for (int y = 0; y < kBlockSide; ++y) {
       const Eigen::Vector3f p0 = origin_cam + c.dz * static_cast<float>(z) + c.dy * static_cast<float>(y);
-      const int i0 = VoxelBlock::index(0, y, z);
       float tsdf[kBlockSide], w[kBlockSide];
       const uint8_t* rgb[kBlockSide];
-      if (!lookupRow(c, p0, tsdf, w, rgb)) continue;
-      float a[kBlockSide];
-      for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
-      for (int x = 0; x < kBlockSide; ++x) {
-        if (w[x] <= 0.0f) continue;
-        ++updates;
-        if (tsdf[x] >= c.mu) continue;
-        fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
-      }
+      if (lookupRow(c, p0, tsdf, w, rgb)) body(VoxelBlock::index(0, y, z), tsdf, w, rgb);
     }
   }
+}
+
+// Fuses the observation into one block; returns the voxels updated.
+// Geometry for the whole row (vectorizable), then color and statistics for
+// the voxels inside the band.
+HXMAP_SIMD_CLONES size_t fuseBlock(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
+                                   float max_w, bool has_rgb) {
+  size_t updates = 0;
+  forEachUpdatedRow(c, origin_cam, [&](int i0, const float* tsdf, const float* w, const uint8_t* const* rgb) {
+    float a[kBlockSide];
+    for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
+    for (int x = 0; x < kBlockSide; ++x) {
+      if (w[x] <= 0.0f) continue;
+      ++updates;
+      if (tsdf[x] >= c.mu) continue;
+      fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
+    }
+  });
+  return updates;
+}
+
+// The inverse of fuseBlock for an observation fused earlier.
+size_t removeFromBlock(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam, bool has_rgb) {
+  size_t updates = 0;
+  forEachUpdatedRow(c, origin_cam, [&](int i0, const float* tsdf, const float* w, const uint8_t* const* rgb) {
+    for (int x = 0; x < kBlockSide; ++x) {
+      if (w[x] <= 0.0f) continue;
+      ++updates;
+      removeObservation(block, i0 + x, tsdf[x], w[x], c.mu, has_rgb ? rgb[x] : nullptr);
+    }
+  });
   return updates;
 }
 
@@ -327,24 +347,8 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
       VoxelBlock& block = map.block(b);
       const Eigen::Vector3f origin_world = (map.key(b) * kBlockSide).cast<float>() * vs + Eigen::Vector3f::Constant(0.5f * vs);
       const Eigen::Vector3f origin_cam = T_cam_world * origin_world;
-      if constexpr (!kRemove) {
-        local_updates += fuseBlock(c, block, origin_cam, max_w, has_rgb);
-      } else {
-        for (int z = 0; z < kBlockSide; ++z) {
-          for (int y = 0; y < kBlockSide; ++y) {
-            const Eigen::Vector3f p0 = origin_cam + c.dz * static_cast<float>(z) + c.dy * static_cast<float>(y);
-            const int i0 = VoxelBlock::index(0, y, z);
-            float tsdf[kBlockSide], w[kBlockSide];
-            const uint8_t* rgb[kBlockSide];
-            if (!lookupRow(c, p0, tsdf, w, rgb)) continue;
-            for (int x = 0; x < kBlockSide; ++x) {
-              if (w[x] <= 0.0f) continue;
-              ++local_updates;
-              removeObservation(block, i0 + x, tsdf[x], w[x], mu, has_rgb ? rgb[x] : nullptr);
-            }
-          }
-        }
-      }
+      local_updates += kRemove ? removeFromBlock(c, block, origin_cam, has_rgb)
+                               : fuseBlock(c, block, origin_cam, max_w, has_rgb);
     }
     updated += local_updates;
   });
