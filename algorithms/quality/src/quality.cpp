@@ -82,6 +82,7 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const Eigen::Vector3f t = kf.T_world_cam.translation();
   const float inv_bs = 1.0f / map.blockSize();
   const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
+  const float voxel_m = map.voxelSize();
 
   std::vector<BlockSamples> acc;
   std::unordered_map<uint64_t, uint32_t> slot_of;
@@ -165,9 +166,17 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
           // of it.
           const Eigen::Vector3f ray = R * f.camera.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
           if (std::abs(nm[0] * ray.x() + nm[1] * ray.y() + nm[2] * ray.z()) >= cos_good * ray.norm()) {
+            // The view counts for the blocks within half a voxel of the
+            // point along its normal: a surface on a block's face (a floor
+            // at z = 0) is the zero crossing between the voxels of the
+            // blocks on both sides.
             const cv::Vec3f vm = m.vertex_world.ptr<cv::Vec3f>(v)[u];
-            const Eigen::Vector3f qm = Eigen::Vector3f(vm[0], vm[1], vm[2]) * inv_bs;
-            ++acc[slotOf(BlockKey(floorToInt(qm.x()), floorToInt(qm.y()), floorToInt(qm.z())))].good_n;
+            const Eigen::Vector3f pm(vm[0], vm[1], vm[2]), half = (0.5f * voxel_m) * Eigen::Vector3f(nm[0], nm[1], nm[2]);
+            const Eigen::Vector3f qa = (pm - half) * inv_bs, qb = (pm + half) * inv_bs;
+            const BlockKey ka(floorToInt(qa.x()), floorToInt(qa.y()), floorToInt(qa.z()));
+            const BlockKey kb(floorToInt(qb.x()), floorToInt(qb.y()), floorToInt(qb.z()));
+            ++acc[slotOf(ka)].good_n;
+            if (kb != ka) ++acc[slotOf(kb)].good_n;
           }
         }
       }  // (last: slotOf may grow acc, which `a` points into)
@@ -175,7 +184,6 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   }
 
   const float s = static_cast<float>(std::clamp(params_.smoothing, 0.0, 1.0));
-  const float voxel_m = map.voxelSize();
   const uint32_t min_samples = static_cast<uint32_t>(std::max(1, params_.min_samples));
   const float views_needed = static_cast<float>(std::max(1, params_.consolidated_views));
   for (const BlockSamples& a : acc) {

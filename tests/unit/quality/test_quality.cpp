@@ -192,6 +192,30 @@ TEST(Quality, CgnFiresOnSurfaceSeenOnceAndNotOnAConsolidatedWall) {
   EXPECT_EQ(seen_once->good_views, 1u);
 }
 
+TEST(Quality, AViewOfASurfaceOnABlockFaceCountsForTheBlocksOnBothSides) {
+  // The map's wall 3 mm behind z = 1.92 m, the face between blocks z = 11
+  // and 12: all of its rendered surface lies in block 12, but it is the
+  // zero crossing between voxels of both. The keyframes' depth alternates
+  // between 8 mm behind and 2 mm in front of the face, so both blocks get
+  // samples. Three head-on keyframes consolidate both (no coverage term).
+  TsdfMap map(tsdfParams());
+  QualityMap quality(qualityParams());
+  const float face = 12 * map.blockSize();
+  const cv::Mat d = depthImage([&](int u, int v) { return face + ((u + v) % 2 ? 0.008f : -0.002f); });
+  const ModelView model = modelView(depthImage([&](int, int) { return face + 0.003f; }));
+  for (uint32_t id = 0; id < 3; ++id) {
+    integrate(map, {d, cv::Mat(), cv::Mat(), kCam, Eigen::Isometry3f::Identity()});
+    const FrameLevel f = frameLevel(d);
+    quality.update(map, {id, Eigen::Isometry3f::Identity(), &f, &model});
+  }
+  for (int bz : {11, 12}) {
+    const BlockQuality* q = quality.find(BlockKey(0, 0, bz));
+    ASSERT_NE(q, nullptr) << "block z " << bz;
+    EXPECT_EQ(q->good_views, 3u) << "block z " << bz;
+    EXPECT_EQ(q->coverage_new, 0.0f) << "block z " << bz;
+  }
+}
+
 TEST(Quality, UfFiresOnNoisyDepthAndNotOnACleanWall) {
   TsdfMap map(tsdfParams());
   QualityMap quality(qualityParams());

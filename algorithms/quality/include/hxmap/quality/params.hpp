@@ -26,7 +26,9 @@ struct QualityParams {
   double gamma_depth = 0.5;        ///< RM: |z_input - z_render|
   /// A block counts as covered (C_new = 0) once this many keyframes saw the
   /// map's surface in it at an incidence below max_view_incidence_deg (each
-  /// with min_samples such pixels, the model's normal against the ray);
+  /// with min_samples such pixels, the model's normal against the ray; a
+  /// surface point counts for the blocks within half a voxel of it along its
+  /// normal, so a surface on a block face counts for both sides);
   /// before, C_new = 1 - usable views / consolidated_views.
   int consolidated_views = 3;
   double max_view_incidence_deg = 75.0;
