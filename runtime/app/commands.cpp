@@ -401,7 +401,7 @@ int runCommand(const RunOptions& o) {
     spdlog::error("{}", s.message());
     exit_code = 1;
   }
-  const alg::TriangleMesh mesh = alg::extractMesh(frontend.map(), c.mesh);
+  const alg::TriangleMesh mesh = frontend.mesh(c.mesh);
   if (auto s = drv::writePly(mesh_path, mesh); !s) {
     spdlog::error("{}", s.message());
     exit_code = 1;
@@ -468,6 +468,11 @@ int runCommand(const RunOptions& o) {
         "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
         refine.jobs, refine.converged, refine.out_of_time, refine.voxels, pj.median, ps.median, pr.median, pi.median,
         refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+    size_t detail_bytes = 0;
+    const auto details = frontend.details();
+    for (const auto& d : details) detail_bytes += d->memoryBytes();
+    summary += fmt::format("  detail layer in the mesh: {} regions, {:.1f} MiB\n", details.size(),
+                           static_cast<double>(detail_bytes) / (1 << 20));
   } else if (frontend.refineJobsMade() > 0) {
     summary += fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade());
   }

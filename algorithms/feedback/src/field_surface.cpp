@@ -6,7 +6,7 @@
 
 namespace hxmap::alg {
 
-FieldSurface::FieldSurface(const NeuralField& field, float band_voxels)
+FieldSurface::FieldSurface(const NeuralField& field, float band_voxels, const std::vector<uint8_t>* seen)
     : grid_(field.fineGrid()), box_(field.box()), voxel_m_(field.voxelSize()), mu_(field.truncation()) {
   grid_.channels = 1;
   const size_t n = grid_.nodeCount();
@@ -26,8 +26,12 @@ FieldSurface::FieldSurface(const NeuralField& field, float band_voxels)
                                                                               static_cast<float>(z));
         const Corners c = locate(coarse, p);
         float s = 0;
-        for (int k = 0; k < 8; ++k) s += c.weight[k] * cp[static_cast<size_t>(c.node[k]) * NeuralField::kCoarseChannels];
-        if (std::abs(s * mu_) > band) continue;
+        bool constrained = true;
+        for (int k = 0; k < 8; ++k) {
+          s += c.weight[k] * cp[static_cast<size_t>(c.node[k]) * NeuralField::kCoarseChannels];
+          if (seen && c.weight[k] > 0.0f && !(*seen)[static_cast<size_t>(c.node[k])]) constrained = false;
+        }
+        if (!constrained || std::abs(s * mu_) > band) continue;
         nodes.push_back((static_cast<size_t>(z) * grid_.nodes.y() + y) * grid_.nodes.x() + x);
         pts.push_back(p);
       }

@@ -386,8 +386,9 @@ void Frontend::keepKeyframeImages(uint32_t id) {
 void Frontend::makeRefineJobs(uint32_t keyframe_id) {
   int made = 0;
   const auto cooldown = static_cast<uint32_t>(std::max(0, params_.refine_cooldown_keyframes));
+  const int limit = refine_budget_ < 0 ? params_.max_jobs_per_keyframe : std::min(params_.max_jobs_per_keyframe, refine_budget_);
   for (const alg::Roi& roi : rois_) {
-    if (made >= params_.max_jobs_per_keyframe) break;
+    if (made >= limit) break;
     size_t busy = 0;
     for (const auto& key : roi.blocks) {
       const auto it = block_submitted_.find(alg::packBlockKey(key));
@@ -438,7 +439,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   }
   const auto t2 = Clock::now();
   out.result = refiner.result();
-  if (refiner.iterations() > 0) out.surface = std::make_shared<alg::FieldSurface>(refiner.field());
+  if (refiner.iterations() > 0) out.surface = std::make_shared<alg::FieldSurface>(refiner.field(), 3.0f, &refiner.seen());
   const auto t3 = Clock::now();
   out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);
   return out;
@@ -455,6 +456,23 @@ alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
     surfaces_.push_front(outcome.surface);
     if (surfaces_.size() > kMaxImplicitSurfaces) surfaces_.pop_back();
   }
+  if (const auto& detail = outcome.result.detail; detail && !detail->empty()) {
+    const std::lock_guard lock(surfaces_mutex_);
+    for (auto it = details_.begin(); it != details_.end();) {
+      if (detail->box.contains((*it)->box)) {
+        detail_bytes_ -= (*it)->memoryBytes();
+        it = details_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+    details_.push_back(detail);
+    detail_bytes_ += detail->memoryBytes();
+    while (detail_bytes_ > kMaxDetailBytes && details_.size() > 1) {
+      detail_bytes_ -= details_.front()->memoryBytes();
+      details_.pop_front();
+    }
+  }
   const std::unique_lock lock(map_mutex_);
   return alg::applyPatch(map_, outcome.result.patch);
 }
@@ -462,6 +480,15 @@ alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
 std::vector<std::shared_ptr<const alg::ImplicitSurface>> Frontend::implicitSurfaces() const {
   const std::lock_guard lock(surfaces_mutex_);
   return {surfaces_.begin(), surfaces_.end()};
+}
+
+std::vector<std::shared_ptr<const alg::RefinedDetail>> Frontend::details() const {
+  const std::lock_guard lock(surfaces_mutex_);
+  return {details_.begin(), details_.end()};
+}
+
+alg::TriangleMesh Frontend::mesh(const alg::MeshParams& params) const {
+  return alg::extractHybridMesh(map_, params, details());
 }
 
 alg::PatchStats Frontend::applyPatch(const alg::TsdfPatch& patch) {

@@ -119,6 +119,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   const bool burn = options.burn_slice_ms > 0;
   const int n_workers = std::max(0, options.refine_workers);
   std::vector<std::unique_ptr<SpscRing<RefineJob>>> job_rings;
+  std::vector<std::atomic<int>> jobs_in_flight(static_cast<size_t>(std::max(0, options.refine_workers)));  ///< queued or running
   std::vector<std::unique_ptr<SpscRing<RefineOutcome>>> outcome_rings;
   for (int w = 0; w < n_workers; ++w) {
     job_rings.push_back(std::make_unique<SpscRing<RefineJob>>(4));
@@ -209,6 +210,16 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       applyOutcomes();
       KeyframeCorrection correction;
       while (corrections.tryPop(correction)) corrections_applied += frontend.applyKeyframeCorrection(correction);
+      // DESIGN: a keyframe makes refinement jobs only for idle workers.
+      // Made while every worker was busy, a job waited behind others for
+      // seconds (a job is about 1 s of CPU, run in the slack of 2-3 frames
+      // per period) with the ROI, keyframes and poses of its time, or found
+      // the rings full and was rejected: in 25 FPS playback of the quality
+      // room 24-28 of 33 jobs were rejected. Left to a later keyframe, the
+      // ROI is chosen afresh from newer scores and the job starts at once.
+      int budget = 0;
+      for (int w = 0; w < n_workers && !burn; ++w) budget += jobs_in_flight[static_cast<size_t>(w)].load() == 0;
+      frontend.setRefineBudget(budget);
       const int64_t start = now_ns();
       sched.frameStarted(start, a.arrival_ns);
       FrameResult r = frontend.process(a.frame);
@@ -231,8 +242,13 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         bool pushed = false;
         for (int k = 0; k < n_workers && !pushed && !burn; ++k) {
           const size_t w = (next_worker + static_cast<size_t>(k)) % static_cast<size_t>(n_workers);
+          jobs_in_flight[w].fetch_add(1);
           pushed = job_rings[w]->tryPush(std::move(job));
-          if (pushed) next_worker = w + 1;
+          if (pushed) {
+            next_worker = w + 1;
+          } else {
+            jobs_in_flight[w].fetch_sub(1);
+          }
         }
         ++(pushed ? refine_submitted : refine_rejected);
         if (pushed) {
@@ -376,7 +392,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       } else {
         outcome.out_of_time = !refiner->finished();
         outcome.result = refiner->result();
-        if (refiner->iterations() > 0) outcome.surface = std::make_shared<alg::FieldSurface>(refiner->field());
+        if (refiner->iterations() > 0) outcome.surface = std::make_shared<alg::FieldSurface>(refiner->field(), 3.0f, &refiner->seen());
         phase = kWriteBack;
       }
       const int64_t s1 = now_ns();
@@ -407,6 +423,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
           if (job_rings[static_cast<size_t>(w)]->tryPop(job)) {
             runJob(w, job);
             job = RefineJob{};  // release the snapshot and images now
+            jobs_in_flight[static_cast<size_t>(w)].fetch_sub(1);
             continue;
           }
           jobs_pushed.wait(seen, std::memory_order_acquire);  // no polling

@@ -364,8 +364,9 @@ TEST_F(PlaneScene, KeyframeNoiseAloneBarelyMovesTheMap) {
   }
   const RefineResult r = refiner.result();
   ASSERT_FALSE(r.patch.entries.empty());
-  // Every written voxel keeps most of its fused value: its weight is about
-  // K / n of the TSDF's (4 keyframes against 32 frames), far below the cap.
+  // Every written voxel keeps most of its fused value: without a bias its
+  // weight is one observation's, 1 / n of the TSDF's (32 frames), far below
+  // the cap.
   for (const auto& e : r.patch.entries) {
     Voxel v;
     ASSERT_TRUE(clean.voxel(e.voxel, v));

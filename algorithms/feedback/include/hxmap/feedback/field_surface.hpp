@@ -26,7 +26,10 @@ class FieldSurface : public ImplicitSurface {
  public:
   /// Samples `field` at its fine grid's nodes whose initial (TSDF) signed
   /// distance is within band_voxels voxels of the surface.
-  explicit FieldSurface(const NeuralField& field, float band_voxels = 3.0f);
+  /// With `seen` (one flag per coarse node, RoiRefiner::seen()), only where
+  /// all the coarse nodes around a fine node were seen by the training
+  /// renderings: elsewhere nothing constrained the field.
+  explicit FieldSurface(const NeuralField& field, float band_voxels = 3.0f, const std::vector<uint8_t>* seen = nullptr);
 
   const Eigen::AlignedBox3f& box() const override { return box_; }
   bool intersect(const Eigen::Vector3f& origin, const Eigen::Vector3f& dir, float t_hint, float& t,

@@ -54,6 +54,11 @@ struct ImplicitParams {
   /// The weight falls linearly to 0 over this many voxels at the ROI border
   /// (no seam with the unrefined map around it).
   double border_blend_voxels = 2.0;
+  /// The detail layer (detail.hpp) keeps the field's surface below the
+  /// voxel size where the write-back gave the field at least this share of
+  /// the voxel (ratio / (1 + ratio); 0.5: where the TSDF's error was found
+  /// to be bias rather than noise). 1 turns the layer off.
+  double detail_min_share = 0.5;
 };
 
 }  // namespace hxmap::alg

@@ -196,6 +196,10 @@ class Frontend {
 
   /// The ROI refinement jobs made since the last call (paper 3.3).
   std::vector<RefineJob> takeRefineJobs();
+  /// At most this many jobs from the next keyframes (negative: only
+  /// max_jobs_per_keyframe bounds them, the default). The real-time runner
+  /// sets it to the number of workers with nothing queued before each frame.
+  void setRefineBudget(int jobs) { refine_budget_ = jobs; }
   /// Between frames: fuse a job's write-back and hand its sigma_Neural to
   /// the quality map. Returns the patch statistics.
   alg::PatchStats applyRefinement(const RefineOutcome& outcome);
@@ -204,6 +208,13 @@ class Frontend {
   /// box center it contains). Safe from any thread.
   std::vector<std::shared_ptr<const alg::ImplicitSurface>> implicitSurfaces() const;
   static constexpr size_t kMaxImplicitSurfaces = 32;
+  /// The refined regions' sub-voxel detail, oldest first (a detail drops
+  /// older ones its box contains; the oldest go beyond kMaxDetailBytes).
+  std::vector<std::shared_ptr<const alg::RefinedDetail>> details() const;
+  static constexpr size_t kMaxDetailBytes = size_t{128} << 20;
+  /// The map's mesh with the refined regions' detail (the TSDF's own mesh
+  /// where nothing was refined). Call between frames, as for map().
+  alg::TriangleMesh mesh(const alg::MeshParams& params) const;
   size_t refineJobsMade() const { return jobs_made_; }
   size_t refineJobsDropped() const { return jobs_dropped_; }
 
@@ -270,6 +281,9 @@ class Frontend {
   mutable std::shared_mutex map_mutex_;
   mutable std::mutex surfaces_mutex_;
   std::deque<std::shared_ptr<const alg::FieldSurface>> surfaces_;  ///< newest first
+  std::deque<std::shared_ptr<const alg::RefinedDetail>> details_;  ///< oldest first (under surfaces_mutex_)
+  size_t detail_bytes_ = 0;
+  int refine_budget_ = -1;
 };
 
 /// Pose feedback's figures for a run's summary.
