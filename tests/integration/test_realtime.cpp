@@ -114,6 +114,10 @@ TEST_F(RealtimeTest, RefinementJobsAreWrittenBackOrCounted) {
   const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
   ASSERT_GT(fe.refineJobsMade(), 0u) << "the room's keyframes choose ROIs";
   EXPECT_EQ(s.refine_jobs_submitted + s.refine_jobs_rejected + fe.refineJobsDropped(), fe.refineJobsMade()) << s.report;
+  // Jobs are made only for idle workers: none waits in a ring, none is
+  // turned away.
+  EXPECT_EQ(s.refine_jobs_rejected, 0u) << s.report;
+  EXPECT_LE(fe.refineJobsMade(), s.refine_jobs_completed + s.refine_jobs_shed + 2u) << s.report;
   EXPECT_LE(s.refine_jobs_completed + s.refine_jobs_shed, s.refine_jobs_submitted);
   EXPECT_GT(s.refine_jobs_completed, 0u) << s.report;
   EXPECT_EQ(s.refine_outcomes_dropped, 0u);

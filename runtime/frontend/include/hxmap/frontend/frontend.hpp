@@ -198,7 +198,7 @@ class Frontend {
   std::vector<RefineJob> takeRefineJobs();
   /// At most this many jobs from the next keyframes (negative: only
   /// max_jobs_per_keyframe bounds them, the default). The real-time runner
-  /// sets it to the number of workers with nothing queued before each frame.
+  /// sets it to the number of idle workers before each frame.
   void setRefineBudget(int jobs) { refine_budget_ = jobs; }
   /// Between frames: fuse a job's write-back and hand its sigma_Neural to
   /// the quality map. Returns the patch statistics.
