@@ -471,8 +471,10 @@ int runCommand(const RunOptions& o) {
     size_t detail_bytes = 0;
     const auto details = frontend.details();
     for (const auto& d : details) detail_bytes += d->memoryBytes();
-    summary += fmt::format("  detail layer in the mesh: {} regions, {:.1f} MiB\n", details.size(),
-                           static_cast<double>(detail_bytes) / (1 << 20));
+    if (!details.empty()) {
+      summary += fmt::format("  detail layer in the mesh: {} regions, {:.1f} MiB\n", details.size(),
+                             static_cast<double>(detail_bytes) / (1 << 20));
+    }
   } else if (frontend.refineJobsMade() > 0) {
     summary += fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade());
   }
