@@ -252,7 +252,7 @@ int main(int argc, char** argv) {
     const auto& scores = fe.blockScores();
     size_t bad_or_under = 0;
     for (const auto& sc : scores) bad_or_under += regionKind(sc.key) != -1;
-    for (double budget : {0.1, 0.15, 0.2, 0.25, 0.3}) {
+    for (double budget : {0.1, 0.15, 0.18, 0.2, 0.25, 0.3}) {
       const size_t k = static_cast<size_t>(std::ceil(budget * static_cast<double>(scores.size())));
       size_t hit = 0, hit_or_under = 0;
       for (size_t i = 0; i < k && i < scores.size(); ++i) {

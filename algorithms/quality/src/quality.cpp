@@ -83,6 +83,7 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const float inv_bs = 1.0f / map.blockSize();
   const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
   const float voxel_m = map.voxelSize();
+  const float border_px_m = 2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
 
   std::vector<BlockSamples> acc;
   std::unordered_map<uint64_t, uint32_t> slot_of;
@@ -101,6 +102,18 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
     for (int u = stride / 2; u < W; u += stride) {
       const float z = drow[u];
       if (!(z > 0.0f) || !std::isfinite(z)) continue;
+      // DESIGN: near the image border a rendering's miss says nothing about
+      // the map: voxels at the edge of the frustum are observed from inside
+      // it only, and a trilinear sample needs all 8, so the raycast model
+      // lacks about two voxels' footprint of the surface the frame shows
+      // there. Counted as errors (RM, OBG), these made wall strips at the
+      // trajectory's frontier, seen at the edge of a few keyframes, rank
+      // among the worst blocks of a map that is right there (precision at a
+      // 20 % budget 67.5 %, now 74.5 %).
+      if (const float zm0 = mrow[u]; !(zm0 > 0.0f && std::isfinite(zm0))) {
+        const int margin = static_cast<int>(border_px_m / z) + 1;
+        if (u < margin || v < margin || u >= W - margin || v >= H - margin) continue;
+      }
       const Eigen::Vector3f p_world = R * f.camera.backproject(static_cast<float>(u), static_cast<float>(v), z) + t;
       const Eigen::Vector3f q = p_world * inv_bs;
       const BlockKey key(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()));

@@ -103,6 +103,35 @@ TEST(Quality, RmFiresWhereTheRenderingMissesTheInputAndNotOnACleanWall) {
   EXPECT_LT(clean, 1e-4f);
 }
 
+TEST(Quality, AMissAtTheImageBorderIsNotHeldAgainstTheMap) {
+  // The rendering lacks the wall in the 3 columns at the image's left
+  // border (voxels at the edge of the frustum, partly observed) and in the
+  // middle strip x in [0.32, 0.64] m (the map is missing there).
+  TsdfMap map(tsdfParams());
+  QualityMap quality(qualityParams());
+  const cv::Mat frame = depthImage([](int, int) { return kWallZ; });
+  const cv::Mat model = depthImage([](int u, int) {
+    const float x = pixelX(u, kWallZ);
+    return u < 3 || (x >= 0.32f && x < 0.64f) ? 0.0f : kWallZ;
+  });
+  const FrameLevel f = frameLevel(frame);
+  const ModelView m = modelView(model);
+  quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
+  const auto scores = quality.score(map.truncation());
+  int n_missing = 0, n_left = 0;
+  const float missing = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() == 2 || k.x() == 3; }, &n_missing);
+  float worst_left = 0;
+  for (const auto& s : scores) {
+    if (s.key.x() > 0) continue;
+    worst_left = std::max(worst_left, s.raw[kRm]);
+    ++n_left;
+  }
+  ASSERT_GT(n_missing, 0);
+  ASSERT_GT(n_left, 0);
+  EXPECT_NEAR(missing, 0.5f, 0.01f);  // gamma_d * min(1, mu / mu)
+  EXPECT_LT(worst_left, 1e-4f) << "the border's misses counted";
+}
+
 TEST(Quality, ObgFlagsTheOccludersEdgeAndNotTheWallBehindIt) {
   TsdfMap map(tsdfParams());
   QualityMap quality(qualityParams());
