@@ -27,11 +27,12 @@
 // farther from t than the write-back itself moves it (|now - t| > |b - t| +
 // half a voxel), something changed since the job (the scene, a pose
 // correction) and the current TSDF is used.
-// Measured (bench_refine, 2 cm voxels): precision inside the ROIs 83.5 ->
-// 85.2 %, rods 41 -> 44 %, board edges 61 -> 65 %, recall 79.5 -> 77.9 %:
-// F1 unchanged. Most of the rods' remaining error is surface the TSDF
-// grows 2-7 cm behind them, in their shadow, where no training ray reaches
-// and the field is not constrained.
+// Measured (bench_refine, 2 cm voxels, detail_min_share 0.5): inside the
+// ROIs precision 76.8 -> 79.1 %, rods 42 -> 45 %, board edges 56 -> 58 %,
+// recall 68.1 -> 66.6 %: F1 about unchanged, and 0.1-0.3 points lower on
+// the synthetic room, hence off by default. Most of the rods' remaining
+// error is surface the TSDF grows 2-7 cm behind them, in their shadow,
+// where no training ray reaches and the field is not constrained.
 #pragma once
 
 #include <memory>
