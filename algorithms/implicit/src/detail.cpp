@@ -21,18 +21,11 @@ std::vector<float> hybridSamples(const TsdfMap& map, const RefinedDetail& d, flo
   const GridLayout& g = d.grid;
   std::vector<float> sdf(g.nodeCount(), std::numeric_limits<float>::quiet_NaN());
   BlockCache cache(map);
-  size_t n = 0;
-  for (int z = 0; z < g.nodes.z(); ++z) {
-    for (int y = 0; y < g.nodes.y(); ++y) {
-      for (int x = 0; x < g.nodes.x(); ++x, ++n) {
-        const Eigen::Vector3f p =
-            g.origin + g.cell * Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
-        float now = std::numeric_limits<float>::quiet_NaN();
-        if (!cache.sample(p, min_weight, now)) now = std::numeric_limits<float>::quiet_NaN();
-        sdf[n] = d.hybridAt(n, now, map.voxelSize());
-      }
-    }
-  }
+  forEachNode(g, [&](size_t n, const Eigen::Vector3f& p) {
+    float now = std::numeric_limits<float>::quiet_NaN();
+    if (!cache.sample(p, min_weight, now)) now = std::numeric_limits<float>::quiet_NaN();
+    sdf[n] = d.hybridAt(n, now, map.voxelSize());
+  });
   return sdf;
 }
 

@@ -336,31 +336,23 @@ std::shared_ptr<const RefinedDetail> RoiRefiner::makeDetail(const std::vector<fl
   std::vector<size_t> nodes;
   std::vector<float> alpha;
   std::vector<Eigen::Vector3f> pts;
-  const GridLayout& g = detail->grid;
-  size_t n = 0;
-  for (int z = 0; z < g.nodes.z(); ++z) {
-    for (int y = 0; y < g.nodes.y(); ++y) {
-      for (int x = 0; x < g.nodes.x(); ++x, ++n) {
-        const Eigen::Vector3f p =
-            g.origin + g.cell * Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
-        const Corners c = locate(coarse, p);
-        float t = 0, a = 0;
-        bool observed = true;
-        for (int k = 0; k < 8 && observed; ++k) {
-          if (c.weight[k] <= 0.0f) continue;
-          const auto node = static_cast<size_t>(c.node[k]);
-          observed = snapshot_weight_[node] > 0.0f;
-          t += c.weight[k] * snapshot_sdf_[node];
-          a += c.weight[k] * share[node];
-        }
-        if (!observed || a < min_share || a <= 0.0f || std::abs(t) > band) continue;
-        detail->snapshot_m[n] = t;
-        nodes.push_back(n);
-        alpha.push_back(a);
-        pts.push_back(p);
-      }
+  forEachNode(detail->grid, [&](size_t n, const Eigen::Vector3f& p) {
+    const Corners c = locate(coarse, p);
+    float t = 0, a = 0;
+    bool observed = true;
+    for (int k = 0; k < 8 && observed; ++k) {
+      if (c.weight[k] <= 0.0f) continue;
+      const auto node = static_cast<size_t>(c.node[k]);
+      observed = snapshot_weight_[node] > 0.0f;
+      t += c.weight[k] * snapshot_sdf_[node];
+      a += c.weight[k] * share[node];
     }
-  }
+    if (!observed || a < min_share || a <= 0.0f || std::abs(t) > band) return;
+    detail->snapshot_m[n] = t;
+    nodes.push_back(n);
+    alpha.push_back(a);
+    pts.push_back(p);
+  });
   constexpr size_t kBatch = 4096;
   Eigen::Matrix3Xf points;
   Eigen::VectorXf s;

@@ -54,6 +54,21 @@ struct GridLayout {
   size_t size() const { return nodeCount() * static_cast<size_t>(channels); }
 };
 
+/// body(n, p) for every node of the grid, x fastest: n its index, p its
+/// position.
+template <typename Body>
+void forEachNode(const GridLayout& grid, Body&& body) {
+  size_t n = 0;
+  for (int z = 0; z < grid.nodes.z(); ++z) {
+    for (int y = 0; y < grid.nodes.y(); ++y) {
+      for (int x = 0; x < grid.nodes.x(); ++x, ++n) {
+        body(n, Eigen::Vector3f(grid.origin + grid.cell * Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y),
+                                                                          static_cast<float>(z))));
+      }
+    }
+  }
+}
+
 /// The 8 nodes around a point and their trilinear weights (the point is
 /// clamped into the grid).
 struct Corners {
