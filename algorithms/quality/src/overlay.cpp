@@ -17,7 +17,7 @@ cv::Mat indicatorImage(const std::vector<BlockScore>& scores, const FrameLevel& 
   for (const BlockScore& s : scores) {
     value[packBlockKey(s.key)] = indicator >= 0 && indicator < kIndicatorCount ? s.normalized[indicator] : s.priority;
   }
-  // S is a weighted sum of normalized indicators; shown relative to its maximum.
+  // S combines the normalized indicators (params.priority_rule); shown relative to its maximum.
   float scale = 1.0f;
   if (indicator < 0 || indicator >= kIndicatorCount) {
     float top = 0;

@@ -266,6 +266,11 @@ std::vector<BlockScore> QualityMap::score(float truncation_m) const {
   }
   const std::array<double, kIndicatorCount> lambda{params_.lambda_cgn, params_.lambda_uf, params_.lambda_obg,
                                                    params_.lambda_rm};
+  // The rule (params.hpp): the largest weighted indicator, scaled so the
+  // largest weight counts fully, or eq 7's weighted sum.
+  const bool sum_rule = params_.priority_rule == "sum";
+  const double lambda_max = *std::max_element(lambda.begin(), lambda.end());
+  const double max_scale = lambda_max > 0.0 ? 1.0 / lambda_max : 0.0;
   for (BlockScore& s : out) {
     double prio = 0;
     for (int k = 0; k < kIndicatorCount; ++k) {
@@ -273,7 +278,7 @@ std::vector<BlockScore> QualityMap::score(float truncation_m) const {
       // information and normalizes to 0.
       const float range = hi[k] - lo[k];
       s.normalized[k] = range > 1e-9f ? (s.raw[k] - lo[k]) / range : 0.0f;
-      prio += lambda[k] * s.normalized[k];
+      prio = sum_rule ? prio + lambda[k] * s.normalized[k] : std::max(prio, max_scale * lambda[k] * s.normalized[k]);
     }
     s.priority = static_cast<float>(prio);
   }

@@ -139,6 +139,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("lambda_uf", q.lambda_uf, 0, kBig);
   v.number("lambda_obg", q.lambda_obg, 0, kBig);
   v.number("lambda_rm", q.lambda_rm, 0, kBig);
+  v.choice("priority_rule", q.priority_rule, {"max", "sum"});
   v.number("top_fraction", q.top_fraction, 0, 1);
   v.integer("max_blocks", q.max_blocks, 0, 1 << 24);
   v.number("min_priority", q.min_priority, 0, kBig);

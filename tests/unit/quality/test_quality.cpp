@@ -2,8 +2,10 @@
 // quiet on a clean wall; normalization, budget and ROI grouping.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
+#include <string>
 
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
@@ -277,27 +279,39 @@ TEST(Quality, UfRenormalizesWhereANeuralFieldReports) {
   EXPECT_FLOAT_EQ(indicatorsOf(q, 0.08f, p)[kUf], 0.125f);  // (0.5 * 0.25 + 0.5 * 0) / 1
 }
 
-TEST(Quality, NormalizationIsGuardedAndPriorityIsTheWeightedSum) {
+TEST(Quality, NormalizationIsGuardedAndPriorityFollowsTheRule) {
   TsdfMap map(tsdfParams());
-  QualityMap quality(qualityParams());
   const cv::Mat frame = depthImage([](int, int) { return kWallZ; });
   const FrameLevel f = frameLevel(frame);
   const ModelView m = modelView(frame);
-  quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
-  const auto scores = quality.score(map.truncation());
-  ASSERT_FALSE(scores.empty());
-  for (const auto& s : scores) {
-    for (int k = 0; k < kIndicatorCount; ++k) {
-      EXPECT_TRUE(std::isfinite(s.normalized[k]));
-      EXPECT_GE(s.normalized[k], 0.0f);
-      EXPECT_LE(s.normalized[k], 1.0f);
+  for (const char* rule : {"max", "sum"}) {
+    SCOPED_TRACE(rule);
+    QualityParams p = qualityParams();
+    p.priority_rule = rule;
+    p.lambda_cgn = 0.4;  // unequal weights: the max rule scales by the largest
+    p.lambda_uf = 0.2;
+    p.lambda_obg = 0.2;
+    p.lambda_rm = 0.2;
+    QualityMap quality(p);
+    quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
+    const auto scores = quality.score(map.truncation());
+    ASSERT_FALSE(scores.empty());
+    for (const auto& s : scores) {
+      for (int k = 0; k < kIndicatorCount; ++k) {
+        EXPECT_TRUE(std::isfinite(s.normalized[k]));
+        EXPECT_GE(s.normalized[k], 0.0f);
+        EXPECT_LE(s.normalized[k], 1.0f);
+      }
+      // RM is 0 on every block: max = min, normalized to 0 (not NaN).
+      EXPECT_EQ(s.normalized[kRm], 0.0f);
+      const auto& n = s.normalized;
+      const float expected = std::string(rule) == "sum"
+                                 ? 0.4f * n[0] + 0.2f * (n[1] + n[2] + n[3])
+                                 : std::max({n[0], 0.5f * n[1], 0.5f * n[2], 0.5f * n[3]});
+      EXPECT_NEAR(s.priority, expected, 1e-6f);
     }
-    // RM is 0 on every block: max = min, normalized to 0 (not NaN).
-    EXPECT_EQ(s.normalized[kRm], 0.0f);
-    const float expected = 0.25f * (s.normalized[0] + s.normalized[1] + s.normalized[2] + s.normalized[3]);
-    EXPECT_NEAR(s.priority, expected, 1e-6f);
+    for (size_t i = 1; i < scores.size(); ++i) EXPECT_GE(scores[i - 1].priority, scores[i].priority);
   }
-  for (size_t i = 1; i < scores.size(); ++i) EXPECT_GE(scores[i - 1].priority, scores[i].priority);
 }
 
 TEST(Quality, RoisAreConnectedChosenBlocksCappedInSizeWithMarginAndKeyframes) {

@@ -1,7 +1,8 @@
 // Quality-guided region selection (paper 3.2): four indicators per voxel
 // block, updated per keyframe from the keyframe and the model rendered at
 // its pose after fusion, min-max normalized over the scored blocks (eq 6),
-// combined into a priority S (eq 7); the top blocks grouped into ROIs.
+// combined into a priority S (eq 7, or the largest weighted indicator:
+// QualityParams::priority_rule); the top blocks grouped into ROIs.
 //
 // DESIGN: every indicator is accumulated from one pass over a subsampled
 // keyframe plus one scan of the blocks that pass landed in, so a keyframe
