@@ -84,6 +84,7 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
   const float voxel_m = map.voxelSize();
   const float border_px_m = 2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
+  const auto max_depth = static_cast<float>(map.params().max_integration_depth_m);
 
   std::vector<BlockSamples> acc;
   std::unordered_map<uint64_t, uint32_t> slot_of;
@@ -102,6 +103,10 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
     for (int u = stride / 2; u < W; u += stride) {
       const float z = drow[u];
       if (!(z > 0.0f) || !std::isfinite(z)) continue;
+      // Beyond the fusion range the map never holds a surface: a miss there
+      // says nothing about it. (Counted, the walls of a room larger than 4
+      // m, seen over the whole Replica slice, were its worst blocks.)
+      if (z > max_depth) continue;
       // DESIGN: near the image border a rendering's miss says nothing about
       // the map: voxels at the edge of the frustum are observed from inside
       // it only, and a trilinear sample needs all 8, so the raycast model

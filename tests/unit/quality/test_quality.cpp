@@ -134,6 +134,30 @@ TEST(Quality, AMissAtTheImageBorderIsNotHeldAgainstTheMap) {
   EXPECT_LT(worst_left, 1e-4f) << "the border's misses counted";
 }
 
+TEST(Quality, ASurfaceBeyondTheFusionRangeIsNotHeldAgainstTheMap) {
+  // The right half of the frame sees a wall 4.5 m away, beyond the map's
+  // 4 m fusion range: the map has no surface there, and that is no error.
+  TsdfParams tp = tsdfParams();
+  tp.max_integration_depth_m = 4.0;
+  TsdfMap map(tp);
+  QualityMap quality(qualityParams());
+  constexpr float kFar = 4.5f;
+  const int half = kCam.width / 2;
+  const cv::Mat frame = depthImage([&](int u, int) { return u < half ? kWallZ : kFar; });
+  const cv::Mat model = depthImage([&](int u, int) { return u < half ? kWallZ : 0.0f; });
+  const FrameLevel f = frameLevel(frame);
+  const ModelView m = modelView(model);
+  quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
+  const auto scores = quality.score(map.truncation());
+  ASSERT_FALSE(scores.empty());
+  float worst_rm = 0;
+  for (const auto& s : scores) {
+    EXPECT_LT(static_cast<float>(s.key.z()) * map.blockSize(), 4.0f) << "a block of the far wall was scored";
+    worst_rm = std::max(worst_rm, s.raw[kRm]);
+  }
+  EXPECT_LT(worst_rm, 1e-4f);
+}
+
 TEST(Quality, ObgFlagsTheOccludersEdgeAndNotTheWallBehindIt) {
   TsdfMap map(tsdfParams());
   QualityMap quality(qualityParams());
