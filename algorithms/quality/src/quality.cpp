@@ -193,8 +193,9 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
             const Eigen::Vector3f qa = (pm - half) * inv_bs, qb = (pm + half) * inv_bs;
             const BlockKey ka(floorToInt(qa.x()), floorToInt(qa.y()), floorToInt(qa.z()));
             const BlockKey kb(floorToInt(qb.x()), floorToInt(qb.y()), floorToInt(qb.z()));
-            ++acc[slotOf(ka)].good_n;
-            if (kb != ka) ++acc[slotOf(kb)].good_n;
+            // Mostly the sample's own block (`key`), whose slot is known.
+            ++acc[ka == key ? last_slot : slotOf(ka)].good_n;
+            if (kb != ka) ++acc[kb == key ? last_slot : slotOf(kb)].good_n;
           }
         }
       }  // (last: slotOf may grow acc, which `a` points into)
