@@ -85,8 +85,6 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const float voxel_m = map.voxelSize();
   const float border_px_m = 2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
   const auto max_depth = static_cast<float>(map.params().max_integration_depth_m);
-  const auto min_confidence = static_cast<float>(map.params().min_confidence);
-  const bool has_confidence = !f.confidence.empty() && f.confidence.type() == CV_32F && f.confidence.size() == f.depth.size();
 
   std::vector<BlockSamples> acc;
   std::unordered_map<uint64_t, uint32_t> slot_of;
@@ -148,10 +146,7 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
 
       const float zm = mrow[u];
       if (!(zm > 0.0f) || !std::isfinite(zm)) {
-        // The map shows no surface where the keyframe has one: an error
-        // unless fusion left the pixel out for its low confidence (far,
-        // oblique or noisy depth is what fusion does not trust).
-        if (has_confidence && f.confidence.ptr<float>(v)[u] < min_confidence) continue;
+        // The map shows no surface where the keyframe has one.
         a.signed_sum -= mu;
         a.abs_sum += mu;
         continue;

@@ -158,31 +158,6 @@ TEST(Quality, ASurfaceBeyondTheFusionRangeIsNotHeldAgainstTheMap) {
   EXPECT_LT(worst_rm, 1e-4f);
 }
 
-TEST(Quality, AMissWhereFusionDidNotTrustTheDepthIsNotHeldAgainstTheMap) {
-  // The map lacks the wall over the right half of the frame. Fusion left
-  // out the right half's upper rows for their low confidence (below
-  // tsdf.min_confidence): no error there; the lower rows it trusted.
-  TsdfMap map(tsdfParams());
-  QualityMap quality(qualityParams());
-  const int half = kCam.width / 2;
-  const cv::Mat frame = depthImage([](int, int) { return kWallZ; });
-  const cv::Mat model = depthImage([&](int u, int) { return u < half ? kWallZ : 0.0f; });
-  FrameLevel f = frameLevel(frame);
-  f.confidence = cv::Mat(frame.size(), CV_32F, cv::Scalar(1.0f));
-  f.confidence(cv::Rect(half, 0, kCam.width - half, kCam.height / 2)).setTo(0.5 * tsdfParams().min_confidence);
-  const ModelView m = modelView(model);
-  quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
-  const auto scores = quality.score(map.truncation());
-  // Blocks wholly on the right (x >= 0.16 m) in the upper and lower rows.
-  int n_up = 0, n_down = 0;
-  const float up = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() >= 1 && k.y() <= -2; }, &n_up);
-  const float down = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() >= 1 && k.y() >= 1; }, &n_down);
-  ASSERT_GT(n_up, 0);
-  ASSERT_GT(n_down, 0);
-  EXPECT_LT(up, 1e-4f);
-  EXPECT_NEAR(down, 0.5f, 0.01f);  // gamma_d * min(1, mu / mu)
-}
-
 TEST(Quality, ObgFlagsTheOccludersEdgeAndNotTheWallBehindIt) {
   TsdfMap map(tsdfParams());
   QualityMap quality(qualityParams());
