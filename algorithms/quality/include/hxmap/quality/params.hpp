@@ -54,10 +54,11 @@ struct QualityParams {
   /// region is bad when any one of them fires. Under the sum, moderate
   /// values of several (a far clean wall: some noise, a few good views)
   /// outranked one strong one (a board's edge: occlusion only). On the
-  /// quality room (bench_quality), precision / recall at a 15 % budget went
-  /// from 83.5 / 66.4 % to 90.1 / 71.7 % on the inspect path and from 80.9 /
-  /// 60.1 % to 93.6 / 69.6 % on the sweep path; at 18 %, on the sweep path,
-  /// from 77.1 / 68.2 % to 82.4 / 73.0 % (inspect unchanged, 80.0 / 76.3 %).
+  /// quality room (bench_quality, when this was measured), precision /
+  /// recall at a 15 % budget went from 83.5 / 66.4 % to 90.1 / 71.7 % on the
+  /// inspect path and from 80.9 / 60.1 % to 93.6 / 69.6 % on the sweep path;
+  /// at 18 %, on the sweep path, from 77.1 / 68.2 % to 82.4 / 73.0 %
+  /// (inspect unchanged, 80.0 / 76.3 %).
   std::string priority_rule = "max";
 
   /// Budget: the top share of scored blocks by S, at most max_blocks.
