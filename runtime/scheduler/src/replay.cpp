@@ -80,8 +80,9 @@ ReplayResult replay(const std::vector<ReplayFrame>& frames, const std::vector<Re
         continue;
       }
       if (v == Verdict::kWait) break;  // nothing else fits either (jobs run in order)
-      t += msToNs(p.job.slice_ms);
-      sched.sliceFinished(p.ticket, p.job.slice_ms);
+      const double ms = p.done == p.job.slow_slice ? p.job.slow_slice_ms : p.job.slice_ms;
+      t += msToNs(ms);
+      sched.sliceFinished(p.ticket, ms);
       if (++p.done == p.job.slices) sched.jobFinished(p.ticket);
       ran = true;
       break;

@@ -57,7 +57,7 @@ struct RuntimeConfig {
   int threads = 0;  ///< data-parallel threads for the offline run; 0 = all cores
   int refine_workers = 1;          ///< background refinement threads (--realtime)
   double deadline_margin_ms = 1.0; ///< kept free before each frame is due
-  int shed_after_periods = 8;      ///< background jobs without slack this long are shed
+  int shed_after_periods = 8;      ///< background jobs without slack this long are shed (started ones: recent_frames periods more)
   /// Nice value of the background threads (refinement workers, pose
   /// feedback) in --realtime and camera runs: on a loaded CPU the kernel
   /// then gives the sensor and frontend threads the cores first. 0 = as

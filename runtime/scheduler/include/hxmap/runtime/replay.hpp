@@ -27,6 +27,8 @@ struct ReplayJob {
   double slice_ms = 5;        ///< what a slice really costs
   double estimate_ms = 5;     ///< what the job declares before it has run
   int slices = 1;
+  int slow_slice = -1;        ///< this slice (index) really costs slow_slice_ms (preempted, say)
+  double slow_slice_ms = 0;
 };
 
 struct ReplayResult {

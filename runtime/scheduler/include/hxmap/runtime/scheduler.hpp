@@ -11,8 +11,8 @@
 // cost is added to that end. A job's slice is admitted when its predicted
 // cost fits (and not before `warmup_frames` frames have measured costs); a job
 // that found no slack for `shed_after_periods` periods is shed (never
-// started: "not started"; started: "cancelled"); a started job that waits is
-// "paused". Pose feedback degrades before it is shed: its effort level
+// started: "not started"), a started one after `recent_frames` periods more
+// ("cancelled"; see admitSlice); a started job that waits is "paused". Pose feedback degrades before it is shed: its effort level
 // (0 = off .. max_feedback_effort) drops while the slack of recent frames
 // cannot hold it and recovers when it can.
 //
@@ -47,7 +47,7 @@ struct SchedulerParams {
   double margin_ms = 1.0;         ///< kept free before the next frame is due
   double ewma_alpha = 0.2;        ///< weight of the newest cost sample
   int recent_frames = 32;         ///< window of the recent maximum and percentiles (frames)
-  int shed_after_periods = 8;     ///< a job without slack for this many periods is shed
+  int shed_after_periods = 8;     ///< a job without slack for this many periods is shed (started: + recent_frames)
   int max_feedback_effort = 3;    ///< pose feedback effort levels above 0 (off)
   int warmup_frames = 3;          ///< no background slice before this many frames have a measured cost
 };
