@@ -157,8 +157,9 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
   // worker; cancelling throws the job's work away. With the same patience
   // for both, one preempted slice (21.7 ms among slices of 7 ms, the first
   // iteration of a refinement job, 25 FPS quality room) kept the prediction
-  // above the slack, and the job running was cancelled 8 periods later:
-  // 1 of 4, 0 of 3, 0 of 2 jobs completed in three runs.
+  // above the slack, and the job running was cancelled 8 periods later.
+  // Six runs each, alternating, on a loaded machine: 13 of 22 jobs made
+  // were shed and 3 completed; now none of 10 shed and 4 completed.
   const int64_t waiting_since = job.started() ? job.last_admitted_ns : job.submitted_ns;
   const int patience = params_.shed_after_periods + (job.started() ? std::max(1, params_.recent_frames) : 0);
   if (now_ns - waiting_since > static_cast<int64_t>(patience) * period_ns_) {

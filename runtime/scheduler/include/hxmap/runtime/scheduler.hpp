@@ -12,9 +12,10 @@
 // cost fits (and not before `warmup_frames` frames have measured costs); a job
 // that found no slack for `shed_after_periods` periods is shed (never
 // started: "not started"), a started one after `recent_frames` periods more
-// ("cancelled"; see admitSlice); a started job that waits is "paused". Pose feedback degrades before it is shed: its effort level
-// (0 = off .. max_feedback_effort) drops while the slack of recent frames
-// cannot hold it and recovers when it can.
+// ("cancelled"; see admitSlice); a started job that waits is "paused". Pose
+// feedback degrades before it is shed: its effort level (0 = off ..
+// max_feedback_effort) drops while the slack of recent frames cannot hold it
+// and recovers when it can.
 //
 // Costs are learned per stage and per job kind: EWMA and the maximum of the
 // recent frames; predictions use the larger. Percentiles come from a bounded
