@@ -27,12 +27,14 @@
 // farther from t than the write-back itself moves it (|now - t| > |b - t| +
 // half a voxel), something changed since the job (the scene, a pose
 // correction) and the current TSDF is used.
-// Measured (bench_refine, 2 cm voxels, detail_min_share 0.5): inside the
-// ROIs precision 76.8 -> 79.1 %, rods 42 -> 45 %, board edges 56 -> 58 %,
-// recall 68.1 -> 66.6 %: F1 about unchanged, and 0.1-0.3 points lower on
-// the synthetic room, hence off by default. Most of the rods' remaining
-// error is surface the TSDF grows 2-7 cm behind them, in their shadow,
-// where no training ray reaches and the field is not constrained.
+// Measured (bench_refine, 2 cm voxels, detail_min_share 0.5, against the
+// map after the write-backs): inside the ROIs precision 70.0 -> 72.7 %,
+// rods 43 -> 46 %, board edges 56 -> 58 %, recall 63.9 -> 60.9 %: F1 0.5
+// points lower, and 0.1-0.3 points lower on the synthetic room, hence off
+// by default. Most of the rods' remaining error is surface the TSDF grows
+// 2-8 cm behind them, in their shadow, where none of the job's training
+// rays reaches (the views that saw through it are older than the job's
+// keyframes) and the field is not constrained.
 #pragma once
 
 #include <memory>
