@@ -32,6 +32,14 @@ PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
       c.b = static_cast<uint8_t>(c.b + a * (static_cast<float>(e.rgb[2]) - c.b) + 0.5f);
     }
     g.weight = std::min(new_w, max_w);
+    uint8_t& flags = blk.color[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)].flags;
+    if (g.sdf_m <= 0.0f) {
+      flags &= static_cast<uint8_t>(~kVoxelSeenThrough);
+    } else if (e.seen_through) {
+      flags |= kVoxelSeenThrough;
+      blk.seen_through = true;
+      ++stats.seen_through;
+    }
     ++stats.applied;
   }
   stats.blocks_allocated = map.blockCount() - before;

@@ -237,9 +237,9 @@ TEST(TsdfMap, BlocksNeverMoveAndCopiesAreDeep) {
 TEST(TsdfPatch, FusesLikeAnObservationAndRejectsBadValues) {
   TsdfMap map(params(0.02));  // mu 8 cm, max weight 64
   TsdfPatch patch;
-  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.01f, 2.0f});   // new block
-  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.04f, 2.0f});   // same voxel again
-  patch.entries.push_back({Eigen::Vector3i(-9, 0, 0), 0.5f, 1.0f});    // beyond the band: clamped
+  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.01f, 2.0f});  // new block
+  patch.entries.push_back({Eigen::Vector3i(3, -2, 9), 0.04f, 2.0f});  // same voxel again
+  patch.entries.push_back({Eigen::Vector3i(-9, 0, 0), 0.5f, 1.0f});   // beyond the band: clamped
   patch.entries.push_back({Eigen::Vector3i(0, 0, 0), std::nanf(""), 1.0f});
   patch.entries.push_back({Eigen::Vector3i(0, 0, 0), 0.01f, 0.0f});
   const PatchStats st = applyPatch(map, patch);
@@ -253,6 +253,56 @@ TEST(TsdfPatch, FusesLikeAnObservationAndRejectsBadValues) {
   ASSERT_TRUE(map.voxel(Eigen::Vector3i(-9, 0, 0), v));
   EXPECT_NEAR(v.sdf_m, 0.08f, 1e-6f);
   EXPECT_FALSE(map.voxel(Eigen::Vector3i(0, 0, 0), v)) << "rejected entries allocate nothing";
+}
+
+TEST(TsdfPatch, AVoxelSeenThroughTakesNoObservationFromBehindASurface) {
+  // A wall at z = 1 m fused once; voxels up to mu behind it are inside.
+  // Refinement writes two of them (z = 1.05 m) outside, one flagged seen
+  // through. Fusing the wall again moves the unflagged one back inside and
+  // leaves the flagged one; a flagged voxel at the surface (1.01 m) is
+  // fused as usual and loses the flag. The reference kernel and
+  // de-integration treat the flag alike.
+  for (const bool reference : {false, true}) {
+    TsdfMap map(params(0.02));
+    DepthObservation wall{cv::Mat(kCam.height, kCam.width, CV_32F, cv::Scalar(1.0f)), cv::Mat(), cv::Mat(), kCam,
+                          Eigen::Isometry3f::Identity()};
+    auto fuse = [&]() { return reference ? integrateReference(map, wall) : integrate(map, wall); };
+    fuse();
+    const Eigen::Vector3i behind(0, 0, 52), control(1, 0, 52), at_surface(0, 1, 50);
+    Voxel v;
+    ASSERT_TRUE(map.voxel(behind, v));
+    ASSERT_NEAR(v.sdf_m, -0.05f, 1e-4f);
+    TsdfPatch patch;
+    patch.entries.push_back({behind, 0.08f, 1000.0f, {0, 0, 0}, false, true});
+    patch.entries.push_back({control, 0.08f, 1000.0f, {0, 0, 0}, false, false});
+    patch.entries.push_back({at_surface, 0.08f, 1000.0f, {0, 0, 0}, false, true});
+    const PatchStats st = applyPatch(map, patch);
+    EXPECT_EQ(st.seen_through, 2u);
+    ASSERT_TRUE(map.voxel(behind, v));
+    const float written = v.sdf_m;
+    EXPECT_GT(written, 0.07f);
+    EXPECT_TRUE(v.color.flags & kVoxelSeenThrough);
+    for (int i = 0; i < 5; ++i) fuse();
+    ASSERT_TRUE(map.voxel(behind, v));
+    EXPECT_FLOAT_EQ(v.sdf_m, written) << (reference ? "reference" : "optimized");
+    EXPECT_TRUE(v.color.flags & kVoxelSeenThrough);
+    ASSERT_TRUE(map.voxel(control, v));
+    EXPECT_LT(v.sdf_m, written - 0.005f);
+    ASSERT_TRUE(map.voxel(at_surface, v));
+    EXPECT_FALSE(v.color.flags & kVoxelSeenThrough);
+    if (!reference) {
+      deintegrate(map, wall);
+      ASSERT_TRUE(map.voxel(behind, v));
+      EXPECT_FLOAT_EQ(v.sdf_m, written);
+    }
+    // A later correction that puts the voxel inside clears the flag.
+    TsdfPatch inside;
+    inside.entries.push_back({behind, -0.08f, 1e5f, {0, 0, 0}, false, true});
+    applyPatch(map, inside);
+    ASSERT_TRUE(map.voxel(behind, v));
+    EXPECT_LT(v.sdf_m, 0.0f);
+    EXPECT_FALSE(v.color.flags & kVoxelSeenThrough);
+  }
 }
 
 }  // namespace

@@ -23,6 +23,10 @@ struct TsdfPatch {
     float weight = 0;       ///< confidence of the correction (> 0)
     uint8_t rgb[3] = {0, 0, 0};
     bool has_color = false;  ///< blend rgb into the voxel's color as well
+    /// Free space seen through: flags the voxel kVoxelSeenThrough when the
+    /// fused result is outside the surface. (Any entry whose result is
+    /// inside clears the flag.)
+    bool seen_through = false;
   };
   std::vector<Entry> entries;
 };
@@ -31,6 +35,7 @@ struct PatchStats {
   size_t applied = 0;
   size_t rejected = 0;          ///< non-finite values or weight <= 0
   size_t blocks_allocated = 0;  ///< corrections outside the allocated map
+  size_t seen_through = 0;      ///< voxels flagged kVoxelSeenThrough
 };
 
 /// Fuses the patch into the map (the map's writer calls this, between frames).

@@ -27,6 +27,13 @@ struct VoxelColor {
   uint8_t r = 0, g = 0, b = 0, flags = 0;
 };
 
+/// VoxelColor::flags: refinement found free space here that fusion had
+/// filled (light from other views passed through the voxel). Fusion then
+/// skips observations that put the voxel more than a voxel behind a
+/// surface (see integrate.hpp); one that puts it at a surface clears the
+/// flag.
+constexpr uint8_t kVoxelSeenThrough = 1;
+
 /// Running statistics (Welford) of the truncated SDF observations a voxel
 /// received near the surface, from which the UF quality indicator takes
 /// sigma_TSDF.
@@ -54,6 +61,7 @@ struct VoxelBlock {
   VoxelGeometry geo[kBlockVoxels] = {};
   VoxelColor color[kBlockVoxels] = {};
   VoxelStats stats[kBlockVoxels] = {};
+  bool seen_through = false;  ///< some voxel may carry kVoxelSeenThrough
   static int index(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
 };
 
@@ -131,12 +139,14 @@ class TsdfMap {
 
   BlockKey blockOf(const Eigen::Vector3f& p_world) const {
     const Eigen::Vector3f q = p_world * inv_block_size_;
-    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), static_cast<int>(std::floor(q.z()))};
+    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())),
+            static_cast<int>(std::floor(q.z()))};
   }
   /// Global voxel coordinates of the voxel containing p.
   Eigen::Vector3i voxelOf(const Eigen::Vector3f& p_world) const {
     const Eigen::Vector3f q = p_world * inv_voxel_size_;
-    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())), static_cast<int>(std::floor(q.z()))};
+    return {static_cast<int>(std::floor(q.x())), static_cast<int>(std::floor(q.y())),
+            static_cast<int>(std::floor(q.z()))};
   }
   Eigen::Vector3f voxelCenter(const Eigen::Vector3i& voxel) const {
     return (voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * voxel_size_;
@@ -183,7 +193,7 @@ class TsdfMap {
   std::vector<BlockKey> keys_;
   std::vector<uint64_t> block_revisions_;  ///< revision of each block's last write
   uint64_t revision_ = 0;
-  std::vector<uint64_t> table_keys_;   ///< packed key + 1, 0 = empty slot
+  std::vector<uint64_t> table_keys_;  ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
 };
 
