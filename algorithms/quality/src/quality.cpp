@@ -17,7 +17,8 @@ Indicators indicatorsOf(const BlockQuality& q, float truncation_m, const Quality
   const float inv_mu = 1.0f / truncation_m;
   auto unit = [&](float meters) { return std::min(1.0f, meters * inv_mu); };
   Indicators out{};
-  out[kCgn] = static_cast<float>(p.alpha_coverage) * q.coverage_new + static_cast<float>(p.alpha_normal) * q.normal_novelty;
+  out[kCgn] =
+      static_cast<float>(p.alpha_coverage) * q.coverage_new + static_cast<float>(p.alpha_normal) * q.normal_novelty;
   // UF: where no neural field exists the weights renormalize to sigma_TSDF alone.
   if (q.sigma_neural_m >= 0.0f && p.w_explicit + p.w_implicit > 0.0) {
     out[kUf] = static_cast<float>((p.w_explicit * unit(q.sigma_tsdf_m) + p.w_implicit * unit(q.sigma_neural_m)) /
@@ -27,7 +28,8 @@ Indicators indicatorsOf(const BlockQuality& q, float truncation_m, const Quality
   }
   const float view_std = q.views > 1 ? std::sqrt(std::max(0.0f, q.view_m2) / static_cast<float>(q.views - 1)) : 0.0f;
   out[kObg] = static_cast<float>(p.beta_depth_var) * unit(view_std) + static_cast<float>(p.beta_boundary) * q.boundary;
-  out[kRm] = static_cast<float>(p.gamma_photometric) * q.photometric + static_cast<float>(p.gamma_depth) * unit(q.depth_error_m);
+  out[kRm] = static_cast<float>(p.gamma_photometric) * q.photometric +
+             static_cast<float>(p.gamma_depth) * unit(q.depth_error_m);
   return out;
 }
 
@@ -59,7 +61,9 @@ float surfaceSigma(const VoxelBlock& block, float voxel_m) {
   return dof > 0 ? static_cast<float>(std::sqrt(m2 / dof)) : 0.0f;
 }
 
-float blend(float old_value, float value, float s, bool first) { return first ? value : old_value + s * (value - old_value); }
+float blend(float old_value, float value, float s, bool first) {
+  return first ? value : old_value + s * (value - old_value);
+}
 
 }  // namespace
 
@@ -83,7 +87,8 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
   const float inv_bs = 1.0f / map.blockSize();
   const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
   const float voxel_m = map.voxelSize();
-  const float border_px_m = 2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
+  const float border_px_m =
+      2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
   const auto max_depth = static_cast<float>(map.params().max_integration_depth_m);
 
   std::vector<BlockSamples> acc;
@@ -189,7 +194,8 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
             // at z = 0) is the zero crossing between the voxels of the
             // blocks on both sides.
             const cv::Vec3f vm = m.vertex_world.ptr<cv::Vec3f>(v)[u];
-            const Eigen::Vector3f pm(vm[0], vm[1], vm[2]), half = (0.5f * voxel_m) * Eigen::Vector3f(nm[0], nm[1], nm[2]);
+            const Eigen::Vector3f pm(vm[0], vm[1], vm[2]),
+                half = (0.5f * voxel_m) * Eigen::Vector3f(nm[0], nm[1], nm[2]);
             const Eigen::Vector3f qa = (pm - half) * inv_bs, qb = (pm + half) * inv_bs;
             const BlockKey ka(floorToInt(qa.x()), floorToInt(qa.y()), floorToInt(qa.z()));
             const BlockKey kb(floorToInt(qb.x()), floorToInt(qb.y()), floorToInt(qb.z()));
@@ -231,16 +237,63 @@ QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf
     q.view_mean_m += delta / static_cast<float>(q.views);
     q.view_m2 += delta * (view_mean - q.view_mean_m);
 
-    for (int k = BlockQuality::kMaxKeyframes - 1; k > 0; --k) {
-      q.keyframe_ids[k] = q.keyframe_ids[k - 1];
-      q.keyframe_samples[k] = q.keyframe_samples[k - 1];
-    }
-    q.keyframe_ids[0] = kf.id;
-    q.keyframe_samples[0] = static_cast<uint16_t>(std::min<uint32_t>(a.n, 65535));
-    q.keyframe_count = std::min<uint32_t>(q.keyframe_count + 1, BlockQuality::kMaxKeyframes);
+    keepKeyframe(q, (a.key.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * map.blockSize(), kf.id, a.n, t);
     ++stats.blocks_scored;
   }
+  if (auto it = keyframes_.find(kf.id); it != keyframes_.end() && it->second.blocks == 0) keyframes_.erase(it);
   return stats;
+}
+
+void QualityMap::keepKeyframe(BlockQuality& q, const Eigen::Vector3f& block_center_world, uint32_t id, uint32_t samples,
+                              const Eigen::Vector3f& camera_world) {
+  // DESIGN: refinement trains an ROI's field on the keyframes its blocks
+  // keep. Kept by recency, they were the last few views along the path,
+  // a few degrees apart: the TSDF's errors that only other directions
+  // reveal (the negative shadow it grows behind a thin rod, seen through
+  // from the side) were never in a job's rays. Kept by spread, a block
+  // holds the views farthest apart in direction; among near-identical
+  // views the newest, whose pose the tracker and the feedback have settled.
+  KeptKeyframe& kept = keyframes_[id];
+  kept.center_world = camera_world;
+  const Eigen::Vector3f dir = (camera_world - block_center_world).normalized();
+  const auto n = static_cast<int>(q.keyframe_count);
+  int slot = n;
+  if (n == BlockQuality::kMaxKeyframes) {
+    if (!params_.spread_keyframes) {
+      slot = 0;  // the oldest: ids grow with time
+      for (int k = 1; k < n; ++k) slot = q.keyframe_ids[k] < q.keyframe_ids[slot] ? k : slot;
+    } else {
+      // The closest pair among the kept and the new; out goes its older.
+      float best = -2.0f;
+      for (int i = 0; i < n; ++i) {
+        const float c_new = q.keyframe_dirs[i].dot(dir);
+        if (c_new > best) {
+          best = c_new;
+          slot = i;
+        }
+        for (int j = i + 1; j < n; ++j) {
+          const float c = q.keyframe_dirs[i].dot(q.keyframe_dirs[j]);
+          if (c > best) {
+            best = c;
+            slot = q.keyframe_ids[i] < q.keyframe_ids[j] ? i : j;
+          }
+        }
+      }
+    }
+    auto it = keyframes_.find(q.keyframe_ids[slot]);
+    if (it != keyframes_.end() && --it->second.blocks == 0) keyframes_.erase(it);
+  } else {
+    ++q.keyframe_count;
+  }
+  q.keyframe_ids[slot] = id;
+  q.keyframe_samples[slot] = static_cast<uint16_t>(std::min<uint32_t>(samples, 65535));
+  q.keyframe_dirs[slot] = dir;
+  ++kept.blocks;
+}
+
+uint32_t QualityMap::keyframeReferences(uint32_t id) const {
+  auto it = keyframes_.find(id);
+  return it == keyframes_.end() ? 0 : it->second.blocks;
 }
 
 void QualityMap::setNeuralSigma(const BlockKey& key, float sigma_m) {
@@ -296,8 +349,8 @@ std::vector<BlockScore> QualityMap::score(float truncation_m) const {
 }
 
 std::vector<Roi> QualityMap::selectRois(const std::vector<BlockScore>& scores, float voxel_size_m) const {
-  size_t budget = static_cast<size_t>(std::ceil(std::clamp(params_.top_fraction, 0.0, 1.0) *
-                                                static_cast<double>(scores.size())));
+  size_t budget =
+      static_cast<size_t>(std::ceil(std::clamp(params_.top_fraction, 0.0, 1.0) * static_cast<double>(scores.size())));
   if (params_.max_blocks > 0) budget = std::min(budget, static_cast<size_t>(params_.max_blocks));
   std::unordered_map<uint64_t, size_t> chosen;  // packed key -> index in scores
   for (size_t i = 0; i < scores.size() && chosen.size() < budget; ++i) {
@@ -365,8 +418,47 @@ std::vector<Roi> QualityMap::selectRois(const std::vector<BlockScore>& scores, f
     std::sort(kfs.begin(), kfs.end(), [](const auto& a, const auto& b) {
       return a.second != b.second ? a.second > b.second : a.first > b.first;
     });
-    if (kfs.size() > static_cast<size_t>(std::max(0, params_.roi_max_keyframes))) kfs.resize(params_.roi_max_keyframes);
-    for (const auto& [id, n] : kfs) roi.keyframes.push_back(id);
+    const auto cap = static_cast<size_t>(std::max(0, params_.roi_max_keyframes));
+    if (!params_.spread_keyframes || kfs.size() <= cap) {
+      if (kfs.size() > cap) kfs.resize(cap);
+      for (const auto& [id, n] : kfs) roi.keyframes.push_back(id);
+      continue;
+    }
+    // Spread: the keyframe that saw the region most, then each time the one
+    // farthest in direction from all chosen (the smallest largest cosine),
+    // among those with at least a quarter of the best's samples; the rest,
+    // if any room is left, by samples.
+    const Eigen::Vector3f c = roi.box_world.center();
+    std::vector<Eigen::Vector3f> dirs;
+    for (const auto& [id, n] : kfs) {
+      auto it = keyframes_.find(id);
+      dirs.push_back(it == keyframes_.end() ? Eigen::Vector3f::Zero()
+                                            : Eigen::Vector3f((it->second.center_world - c).normalized()));
+    }
+    std::vector<char> chosen(kfs.size(), 0);
+    std::vector<size_t> order{0};
+    chosen[0] = 1;
+    const uint32_t min_samples = kfs[0].second / 4;
+    while (order.size() < cap) {
+      size_t pick = kfs.size();
+      float pick_cos = 2.0f;
+      for (size_t i = 0; i < kfs.size(); ++i) {
+        if (chosen[i] || kfs[i].second < min_samples) continue;
+        float closest = -1.0f;
+        for (size_t j : order) closest = std::max(closest, dirs[i].dot(dirs[j]));
+        if (closest < pick_cos) {
+          pick_cos = closest;
+          pick = i;
+        }
+      }
+      if (pick == kfs.size()) {
+        for (pick = 0; pick < kfs.size() && chosen[pick]; ++pick) {
+        }
+      }
+      chosen[pick] = 1;
+      order.push_back(pick);
+    }
+    for (size_t i : order) roi.keyframes.push_back(kfs[i].first);
   }
   std::stable_sort(rois.begin(), rois.end(), [](const Roi& a, const Roi& b) { return a.priority > b.priority; });
   return rois;

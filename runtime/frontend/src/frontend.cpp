@@ -19,9 +19,7 @@ namespace {
 class StageTimer {
  public:
   explicit StageTimer(double& out_ms) : out_(out_ms), start_(std::chrono::steady_clock::now()) {}
-  ~StageTimer() {
-    out_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count();
-  }
+  ~StageTimer() { out_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count(); }
   StageTimer(const StageTimer&) = delete;
   StageTimer& operator=(const StageTimer&) = delete;
 
@@ -130,7 +128,8 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking)) {
     r.keyframe = true;
     r.keyframe_id = static_cast<uint32_t>(keyframes_);
-    if (params_.feedback.enabled) keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
+    if (params_.feedback.enabled)
+      keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
     T_last_kf_ = T;
     last_kf_ns_ = frame.stamp_ns;
     ++keyframes_;
@@ -173,7 +172,8 @@ void Frontend::keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::Ic
   w.depth = l.depth;
   // Without color the intensity is flat: no gradient, so no photometric
   // residual (depth only).
-  w.intensity = last_frame_.has_color && !l.intensity.empty() ? l.intensity : cv::Mat(l.depth.size(), CV_32F, cv::Scalar(0));
+  w.intensity =
+      last_frame_.has_color && !l.intensity.empty() ? l.intensity : cv::Mat(l.depth.size(), CV_32F, cv::Scalar(0));
   if (icp && icp->ok) {
     w.odometry_from_previous = T_previous_kf.inverse() * T_last_;
     // ICP perturbs on the left in the world frame (T <- exp(xi_w) T); the
@@ -251,7 +251,6 @@ int Frontend::reintegratePending(int max) {
   return done;
 }
 
-
 void FeedbackTally::add(const alg::SolveReport& report, double ms) {
   if (!report.failure.empty()) {
     ++failed;
@@ -270,7 +269,9 @@ std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackPa
   if (!p.enabled) return "pose feedback: off\n";
   std::vector<double> v = solve_ms;
   std::sort(v.begin(), v.end());
-  auto at = [&](double q) { return v.empty() ? 0.0 : v[static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5)]; };
+  auto at = [&](double q) {
+    return v.empty() ? 0.0 : v[static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5)];
+  };
   return fmt::format(
       "pose feedback: window {}, {} windows solved ({} cut short), solve median {:.1f} ms, p90 {:.1f} ms (without "
       "waits for slack); cost "
@@ -279,9 +280,9 @@ std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackPa
       "({:.1f} ms each), {} waiting\n",
       p.window, windows, stopped, at(0.5), at(0.9), cost_before, cost_after,
       static_cast<double>(explicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)),
-      static_cast<double>(implicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)), corrections_sent, c.corrections,
-      c.corrections_late, c.reintegrations, c.reintegrations ? c.reintegrate_ms / static_cast<double>(c.reintegrations) : 0.0,
-      c.reintegrations_pending);
+      static_cast<double>(implicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)), corrections_sent,
+      c.corrections, c.corrections_late, c.reintegrations,
+      c.reintegrations ? c.reintegrate_ms / static_cast<double>(c.reintegrations) : 0.0, c.reintegrations_pending);
 }
 
 void FeedbackSolver::add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& maps) {
@@ -289,8 +290,9 @@ void FeedbackSolver::add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& 
   window_.add(std::move(keyframe), maps);
   // Forget the keyframes that slid out.
   const uint32_t oldest = window_.keyframes().front().id;
-  published_.erase(std::remove_if(published_.begin(), published_.end(), [&](const auto& p) { return p.first < oldest; }),
-                   published_.end());
+  published_.erase(
+      std::remove_if(published_.begin(), published_.end(), [&](const auto& p) { return p.first < oldest; }),
+      published_.end());
 }
 
 std::vector<KeyframeCorrection> FeedbackSolver::solve(const alg::FeedbackMaps& maps, const std::function<bool()>& stop,
@@ -354,7 +356,7 @@ void Frontend::scoreKeyframe(FrameResult& r) {
     }
   }
   if (!level) return;
-  alg::FrameLevel frame = *level;                  // headers only
+  alg::FrameLevel frame = *level;                           // headers only
   if (!last_frame_.has_color) frame.intensity = cv::Mat();  // no photometric mismatch without color
   quality_.update(map_, {r.keyframe_id, T_last_.cast<float>(), &frame, &model});
   scores_ = quality_.score(map_.truncation());
@@ -380,13 +382,29 @@ void Frontend::keepKeyframeImages(uint32_t id) {
     cv::resize(last_frame_.rgb, k.rgb, l.depth.size(), 0, 0, cv::INTER_AREA);
   }
   keyframe_images_.push_back(std::move(k));
-  while (static_cast<int>(keyframe_images_.size()) > std::max(1, params_.keyframe_images)) keyframe_images_.pop_front();
+  // DESIGN: over the cap, out goes the keyframe fewest blocks keep (the
+  // oldest of those), never the newest: with the quality map's blocks
+  // keeping views spread in direction, the images an ROI trains on reach
+  // back past the last few keyframes.
+  while (static_cast<int>(keyframe_images_.size()) > std::max(1, params_.keyframe_images)) {
+    auto out = keyframe_images_.begin();
+    uint32_t fewest = quality_.keyframeReferences(out->id);
+    for (auto it = std::next(out); it != std::prev(keyframe_images_.end()) && fewest > 0; ++it) {
+      const uint32_t refs = quality_.keyframeReferences(it->id);
+      if (refs < fewest) {
+        fewest = refs;
+        out = it;
+      }
+    }
+    keyframe_images_.erase(out);
+  }
 }
 
 void Frontend::makeRefineJobs(uint32_t keyframe_id) {
   int made = 0;
   const auto cooldown = static_cast<uint32_t>(std::max(0, params_.refine_cooldown_keyframes));
-  const int limit = refine_budget_ < 0 ? params_.max_jobs_per_keyframe : std::min(params_.max_jobs_per_keyframe, refine_budget_);
+  const int limit =
+      refine_budget_ < 0 ? params_.max_jobs_per_keyframe : std::min(params_.max_jobs_per_keyframe, refine_budget_);
   for (const alg::Roi& roi : rois_) {
     if (made >= limit) break;
     size_t busy = 0;
@@ -425,7 +443,9 @@ std::vector<RefineJob> Frontend::takeRefineJobs() {
 
 RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params) {
   using Clock = std::chrono::steady_clock;
-  auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  auto ms = [](Clock::time_point a, Clock::time_point b) {
+    return std::chrono::duration<double, std::milli>(b - a).count();
+  };
   RefineOutcome out;
   out.job_id = job.id;
   const auto t0 = Clock::now();
@@ -439,7 +459,8 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   }
   const auto t2 = Clock::now();
   out.result = refiner.result();
-  if (refiner.iterations() > 0) out.surface = std::make_shared<alg::FieldSurface>(refiner.field(), 3.0f, &refiner.seen());
+  if (refiner.iterations() > 0)
+    out.surface = std::make_shared<alg::FieldSurface>(refiner.field(), 3.0f, &refiner.seen());
   const auto t3 = Clock::now();
   out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);
   return out;

@@ -33,7 +33,9 @@ QualityParams qualityParams() {
   return q;
 }
 
-float pixelX(int u, float z) { return (static_cast<float>(u) - static_cast<float>(kCam.cx)) / static_cast<float>(kCam.fx) * z; }
+float pixelX(int u, float z) {
+  return (static_cast<float>(u) - static_cast<float>(kCam.cx)) / static_cast<float>(kCam.fx) * z;
+}
 
 // Depth of the wall, with a per-pixel override.
 template <typename F>
@@ -96,8 +98,10 @@ TEST(Quality, RmFiresWhereTheRenderingMissesTheInputAndNotOnACleanWall) {
   EXPECT_GT(stats.blocks_scored, 50u);
   const auto scores = quality.score(map.truncation());
   int n_bad = 0, n_clean = 0;
-  const float bad = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() == 2 || k.x() == 3; }, &n_bad);
-  const float clean = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() <= 0 || k.x() >= 5; }, &n_clean);
+  const float bad = meanRaw(
+      scores, kRm, [](const BlockKey& k) { return k.x() == 2 || k.x() == 3; }, &n_bad);
+  const float clean = meanRaw(
+      scores, kRm, [](const BlockKey& k) { return k.x() <= 0 || k.x() >= 5; }, &n_clean);
   ASSERT_GT(n_bad, 0);
   ASSERT_GT(n_clean, 0);
   // gamma_d * min(1, 5 cm / mu 8 cm) = 0.31; no photometric term without map colors.
@@ -121,7 +125,8 @@ TEST(Quality, AMissAtTheImageBorderIsNotHeldAgainstTheMap) {
   quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
   const auto scores = quality.score(map.truncation());
   int n_missing = 0, n_left = 0;
-  const float missing = meanRaw(scores, kRm, [](const BlockKey& k) { return k.x() == 2 || k.x() == 3; }, &n_missing);
+  const float missing = meanRaw(
+      scores, kRm, [](const BlockKey& k) { return k.x() == 2 || k.x() == 3; }, &n_missing);
   float worst_left = 0;
   for (const auto& s : scores) {
     if (s.key.x() > 0) continue;
@@ -176,7 +181,8 @@ TEST(Quality, ObgFlagsTheOccludersEdgeAndNotTheWallBehindIt) {
     if (s.key.z() == 7 && (s.key.x() == -2 || s.key.x() == 1)) edge_max = std::max(edge_max, s.raw[kObg]);
   }
   int n_wall = 0;
-  const float wall = meanRaw(scores, kObg, [](const BlockKey& k) { return k.z() == 12 && std::abs(k.x()) >= 4; }, &n_wall);
+  const float wall = meanRaw(
+      scores, kObg, [](const BlockKey& k) { return k.z() == 12 && std::abs(k.x()) >= 4; }, &n_wall);
   ASSERT_GT(n_wall, 0);
   EXPECT_GE(edge_max, 0.5f * 0.99f);  // beta_o * B_occ, B_occ saturated
   EXPECT_LT(wall, 1e-4f);
@@ -230,12 +236,12 @@ TEST(Quality, CgnFiresOnSurfaceSeenOnceAndNotOnAConsolidatedWall) {
   int n_new = 0, n_old = 0;
   // Blocks away from the image's top and bottom rows, where the raycast
   // model (which the views are counted on) has fewer hits.
-  const float fresh = meanRaw(scores, kCgn, [](const BlockKey& k) {
-    return k.z() == 12 && k.x() >= 1 && k.x() <= 5 && k.y() >= -4 && k.y() <= 3;
-  }, &n_new);
-  const float old = meanRaw(scores, kCgn, [](const BlockKey& k) {
-    return k.z() == 12 && k.x() <= -2 && k.x() >= -6 && k.y() >= -4 && k.y() <= 3;
-  }, &n_old);
+  const float fresh = meanRaw(
+      scores, kCgn,
+      [](const BlockKey& k) { return k.z() == 12 && k.x() >= 1 && k.x() <= 5 && k.y() >= -4 && k.y() <= 3; }, &n_new);
+  const float old = meanRaw(
+      scores, kCgn,
+      [](const BlockKey& k) { return k.z() == 12 && k.x() <= -2 && k.x() >= -6 && k.y() >= -4 && k.y() <= 3; }, &n_old);
   ASSERT_GT(n_new, 0);
   ASSERT_GT(n_old, 0);
   // alpha_c * (1 - 1/3 usable views) = 0.33 where one keyframe saw the wall,
@@ -279,9 +285,8 @@ TEST(Quality, UfFiresOnNoisyDepthAndNotOnACleanWall) {
   // Right half: 2 cm depth noise; left half: 1 mm.
   std::vector<cv::Mat> frames;
   for (int i = 0; i < 20; ++i) {
-    frames.push_back(depthImage([&](int u, int) {
-      return kWallZ + (pixelX(u, kWallZ) >= 0.0f ? 0.02f : 0.001f) * noise(rng);
-    }));
+    frames.push_back(
+        depthImage([&](int u, int) { return kWallZ + (pixelX(u, kWallZ) >= 0.0f ? 0.02f : 0.001f) * noise(rng); }));
   }
   const auto scores = fuseAndScore(map, quality, frames, frames.back());
   const float noisy = meanRaw(scores, kUf, [](const BlockKey& k) { return k.z() == 12 && k.x() >= 1 && k.x() <= 5; });
@@ -329,9 +334,8 @@ TEST(Quality, NormalizationIsGuardedAndPriorityFollowsTheRule) {
       // RM is 0 on every block: max = min, normalized to 0 (not NaN).
       EXPECT_EQ(s.normalized[kRm], 0.0f);
       const auto& n = s.normalized;
-      const float expected = std::string(rule) == "sum"
-                                 ? 0.4f * n[0] + 0.2f * (n[1] + n[2] + n[3])
-                                 : std::max({n[0], 0.5f * n[1], 0.5f * n[2], 0.5f * n[3]});
+      const float expected = std::string(rule) == "sum" ? 0.4f * n[0] + 0.2f * (n[1] + n[2] + n[3])
+                                                        : std::max({n[0], 0.5f * n[1], 0.5f * n[2], 0.5f * n[3]});
       EXPECT_NEAR(s.priority, expected, 1e-6f);
     }
     for (size_t i = 1; i < scores.size(); ++i) EXPECT_GE(scores[i - 1].priority, scores[i].priority);
@@ -393,6 +397,64 @@ TEST(Quality, RoisAreConnectedChosenBlocksCappedInSizeWithMarginAndKeyframes) {
   QualityMap q2(p);
   for (const auto& roi : q2.selectRois(scores, map.voxelSize())) chosen += roi.blocks.size();
   EXPECT_EQ(chosen, std::min<size_t>(5, static_cast<size_t>(std::ceil(0.1 * scores.size()))));
+}
+
+TEST(Quality, BlocksAndRoisKeepKeyframesSpreadInDirection) {
+  // The wall seen from two cameras 1 m to either side (27 degrees off the
+  // wall's center line), then from six nearly the same place in front. The
+  // blocks at the wall's center keep the two side views (spread) or only
+  // the six newest (recency).
+  auto run = [](bool spread, std::vector<uint32_t>& block_ids, std::vector<uint32_t>& roi_ids, uint32_t& side_refs) {
+    TsdfMap map(tsdfParams());
+    QualityParams p = qualityParams();
+    p.spread_keyframes = spread;
+    p.top_fraction = 1.0;
+    p.roi_max_keyframes = 3;
+    QualityMap quality(p);
+    const float xs[] = {-1.0f, 1.0f, 0.0f, 0.02f, 0.04f, 0.06f, 0.08f, 0.10f};
+    const cv::Mat wall = depthImage([](int, int) { return kWallZ; });
+    const FrameLevel f = frameLevel(wall);
+    const ModelView m = modelView(wall);
+    for (uint32_t id = 0; id < 8; ++id) {
+      Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
+      T.translation().x() = xs[id];
+      quality.update(map, {id, T, &f, &m});
+    }
+    const BlockKey center(0, 0, 12);
+    const BlockQuality* q = quality.find(center);
+    ASSERT_NE(q, nullptr);
+    ASSERT_EQ(q->keyframe_count, static_cast<uint32_t>(BlockQuality::kMaxKeyframes));
+    block_ids.assign(q->keyframe_ids.begin(), q->keyframe_ids.end());
+    std::sort(block_ids.begin(), block_ids.end());
+    std::vector<BlockScore> one;
+    for (const auto& s : quality.score(map.truncation())) {
+      if (s.key == center) one.push_back(s);
+    }
+    ASSERT_EQ(one.size(), 1u);
+    const auto rois = quality.selectRois(one, map.voxelSize());
+    ASSERT_EQ(rois.size(), 1u);
+    roi_ids = rois[0].keyframes;
+    std::sort(roi_ids.begin(), roi_ids.end());
+    side_refs = quality.keyframeReferences(0) + quality.keyframeReferences(1);
+  };
+  std::vector<uint32_t> blocks, roi;
+  uint32_t side_refs = 0;
+  run(true, blocks, roi, side_refs);
+  EXPECT_TRUE(std::binary_search(blocks.begin(), blocks.end(), 0u));
+  EXPECT_TRUE(std::binary_search(blocks.begin(), blocks.end(), 1u));
+  EXPECT_TRUE(std::binary_search(blocks.begin(), blocks.end(), 7u));  // the newest always enters
+  ASSERT_EQ(roi.size(), 3u);
+  EXPECT_TRUE(std::binary_search(roi.begin(), roi.end(), 0u));  // both sides and one front view
+  EXPECT_TRUE(std::binary_search(roi.begin(), roi.end(), 1u));
+  const uint32_t spread_refs = side_refs;
+
+  run(false, blocks, roi, side_refs);
+  EXPECT_EQ(blocks, (std::vector<uint32_t>{2, 3, 4, 5, 6, 7}));
+  EXPECT_EQ(roi.size(), 3u);
+  EXPECT_EQ(roi.front(), 5u);
+  // Only the wall's edges, which no other camera saw, still keep them.
+  EXPECT_LT(side_refs, spread_refs);
+  EXPECT_GT(side_refs, 0u);
 }
 
 TEST(Quality, BadInputsAreIgnoredNotFatal) {

@@ -18,12 +18,12 @@ struct QualityParams {
   /// share and mismatch of a block (exponential average over keyframes).
   double smoothing = 0.5;
 
-  double alpha_coverage = 0.5;  ///< CGN (eq 2): how newly covered the block is (few usable views yet)
-  double alpha_normal = 0.5;    ///< CGN: normal novelty 1 - cos
-  double w_explicit = 0.5;      ///< UF (eq 3): sigma_TSDF
-  double w_implicit = 0.5;      ///< UF: sigma_Neural, where a neural field exists
-  double beta_depth_var = 0.5;  ///< OBG (eq 4): depth mismatch spread across viewpoints
-  double beta_boundary = 0.5;   ///< OBG: share of samples on occlusion boundaries
+  double alpha_coverage = 0.5;     ///< CGN (eq 2): how newly covered the block is (few usable views yet)
+  double alpha_normal = 0.5;       ///< CGN: normal novelty 1 - cos
+  double w_explicit = 0.5;         ///< UF (eq 3): sigma_TSDF
+  double w_implicit = 0.5;         ///< UF: sigma_Neural, where a neural field exists
+  double beta_depth_var = 0.5;     ///< OBG (eq 4): depth mismatch spread across viewpoints
+  double beta_boundary = 0.5;      ///< OBG: share of samples on occlusion boundaries
   double gamma_photometric = 0.5;  ///< RM (eq 5): |I_input - I_render|, intensity in [0, 1]
   double gamma_depth = 0.5;        ///< RM: |z_input - z_render|
   /// A block counts as covered (C_new = 0) once this many keyframes saw the
@@ -70,6 +70,11 @@ struct QualityParams {
   int roi_max_extent_blocks = 4;
   int roi_margin_voxels = 2;
   int roi_max_keyframes = 8;
+  /// Which keyframes a block keeps (BlockQuality::kMaxKeyframes of them)
+  /// and an ROI trains on: true, the ones that saw it from the most
+  /// different directions (a new keyframe always enters; out goes the older
+  /// of the two closest in direction); false, the most recent.
+  bool spread_keyframes = true;
 };
 
 }  // namespace hxmap::alg

@@ -87,12 +87,15 @@ struct BlockQuality {
   float view_mean_m = 0, view_m2 = 0;
   float boundary = 0;  ///< running share of samples on occlusion boundaries
   // RM
-  float photometric = 0;     ///< running mean |I_input - I_render|
-  float depth_error_m = 0;   ///< running mean |z_input - z_render| (capped at mu)
-  // Keyframes that observed the block, most recent first, with sample counts.
+  float photometric = 0;    ///< running mean |I_input - I_render|
+  float depth_error_m = 0;  ///< running mean |z_input - z_render| (capped at mu)
+  // Keyframes that observed the block (spread over viewpoints, or the most
+  // recent: QualityParams::spread_keyframes), with sample counts and the
+  // unit direction from the block's center to the camera.
   static constexpr int kMaxKeyframes = 6;
   std::array<uint32_t, kMaxKeyframes> keyframe_ids{};
   std::array<uint16_t, kMaxKeyframes> keyframe_samples{};
+  std::array<Eigen::Vector3f, kMaxKeyframes> keyframe_dirs{};
   uint32_t keyframe_count = 0;
 };
 
@@ -117,9 +120,9 @@ struct BlockScore {
 /// A region of interest for implicit refinement: connected chosen blocks.
 struct Roi {
   std::vector<BlockKey> blocks;
-  Eigen::AlignedBox3f box_world;   ///< the blocks' extent grown by the margin
-  std::vector<uint32_t> keyframes; ///< the keyframes that observed it most, best first
-  float priority = 0;              ///< the highest S among its blocks
+  Eigen::AlignedBox3f box_world;    ///< the blocks' extent grown by the margin
+  std::vector<uint32_t> keyframes;  ///< the keyframes to train on, best first (see selectRois)
+  float priority = 0;               ///< the highest S among its blocks
 };
 
 class QualityMap {
@@ -144,14 +147,29 @@ class QualityMap {
 
   const BlockQuality* find(const BlockKey& key) const;
   size_t size() const { return blocks_.size(); }
-  void clear() { blocks_.clear(); }
+  void clear() {
+    blocks_.clear();
+    keyframes_.clear();
+  }
+
+  /// How many blocks keep the keyframe among theirs (0: none; its images
+  /// can go).
+  uint32_t keyframeReferences(uint32_t id) const;
 
  private:
   static uint64_t pack(const BlockKey& k) { return packBlockKey(k); }
   static BlockKey unpack(uint64_t p) { return unpackBlockKey(p); }
+  void keepKeyframe(BlockQuality& q, const Eigen::Vector3f& block_center_world, uint32_t id, uint32_t samples,
+                    const Eigen::Vector3f& camera_world);
+
+  struct KeptKeyframe {
+    Eigen::Vector3f center_world = Eigen::Vector3f::Zero();
+    uint32_t blocks = 0;  ///< block slots holding it
+  };
 
   QualityParams params_;
   std::unordered_map<uint64_t, BlockQuality> blocks_;
+  std::unordered_map<uint32_t, KeptKeyframe> keyframes_;
 };
 
 /// Per pixel of `frame` (a pyramid level of a keyframe at T_world_cam), the
