@@ -25,10 +25,10 @@
 // asserts nothing.
 #include <algorithm>
 #include <array>
-#include <map>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -38,9 +38,9 @@
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/triangle_bvh.hpp"
 #include "hxmap/frontend/frontend.hpp"
-#include "quality_room_sequence.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/raycast.hpp"
+#include "quality_room_sequence.hpp"
 
 using namespace hxmap;
 
@@ -71,8 +71,9 @@ alg::TriangleMesh crop(const alg::TriangleMesh& m, const std::vector<Eigen::Alig
 struct Scores {
   double precision = 0, recall = 0, f1 = 0;
 };
-Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt, const std::vector<Eigen::AlignedBox3f>& boxes,
-                   const alg::ObservedBy& observed, const alg::MeshMetricsParams& mp) {
+Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,
+                   const std::vector<Eigen::AlignedBox3f>& boxes, const alg::ObservedBy& observed,
+                   const alg::MeshMetricsParams& mp) {
   Scores s;
   const alg::TriangleMesh rc = crop(recon, boxes), gc = crop(gt, boxes);
   if (!rc.empty()) s.precision = alg::computeMeshMetrics(rc, gt, mp).point_to_surface.precision_fine;
@@ -129,7 +130,8 @@ void roiDepthL1(const alg::TsdfMap& map, const rt::RefineJob& job, DepthL1& acc)
       for (int u = 0; u < kf.depth.cols; ++u) {
         const float z = kf.depth.at<float>(v, u);
         if (!(z > 0)) continue;
-        const Eigen::Vector3f p = kf.T_world_cam * kf.camera.backproject(static_cast<float>(u), static_cast<float>(v), z);
+        const Eigen::Vector3f p =
+            kf.T_world_cam * kf.camera.backproject(static_cast<float>(u), static_cast<float>(v), z);
         if (!job.roi.box_world.contains(p)) continue;
         const float zr = mv.depth.at<float>(v, u);
         if (!(zr > 0)) {
@@ -146,7 +148,7 @@ struct HybridRun {
   alg::TriangleMesh tsdf_mesh, hybrid_mesh, detail_mesh;
   size_t details = 0;
   std::vector<Eigen::AlignedBox3f> boxes;
-  std::vector<double> job_ms, iteration_ms, setup_ms, memory_mb, iterations;
+  std::vector<double> job_ms, iteration_ms, setup_ms, memory_mb, iterations, rays, free_rays;
   DepthL1 before, after;
   size_t jobs = 0, converged = 0, out_of_time = 0;
   double tsdf_s = 0, hybrid_s = 0;
@@ -187,10 +189,13 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
       out.setup_ms.push_back(o.setup_ms);
       if (st.iterations > 0) out.iteration_ms.push_back(o.train_ms / st.iterations);
       out.iterations.push_back(st.iterations);
+      out.rays.push_back(static_cast<double>(st.rays - st.free_space_rays));
+      out.free_rays.push_back(static_cast<double>(st.free_space_rays));
       out.memory_mb.push_back(static_cast<double>(st.memory_bytes) / (1 << 20));
       if (!o.result.patch.entries.empty()) out.boxes.push_back(job.roi.box_world);
     }
-    if (++done % 40 == 0) std::fprintf(stderr, "  hybrid: %zu of %zu frames, %zu jobs\n", done, frames.size(), out.jobs);
+    if (++done % 40 == 0)
+      std::fprintf(stderr, "  hybrid: %zu of %zu frames, %zu jobs\n", done, frames.size(), out.jobs);
   }
   out.hybrid_s = std::chrono::duration<double>(Clock::now() - t0).count();
   out.hybrid_mesh = alg::extractMesh(fe.map(), mp);
@@ -211,14 +216,18 @@ void printJobs(const HybridRun& r) {
     const size_t n = d.error_m.size() + d.missing;
     return n ? 100.0 * static_cast<double>(d.missing) / static_cast<double>(n) : 0.0;
   };
-  std::printf("  jobs: %zu (%zu converged early, %zu stopped by the time budget); per job median %.0f ms (setup %.1f ms), "
-              "%.0f iterations, per iteration median %.2f ms; memory per ROI median %.1f MiB, max %.1f MiB\n",
-              r.jobs, r.converged, r.out_of_time, median(r.job_ms), median(r.setup_ms), median(r.iterations),
-              median(r.iteration_ms), median(r.memory_mb),
-              r.memory_mb.empty() ? 0.0 : *std::max_element(r.memory_mb.begin(), r.memory_mb.end()));
-  std::printf("  map rendering vs input depth inside each job's ROI, before -> after its write-back: median %.2f -> %.2f mm, "
-              "mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels\n",
-              med(r.before), med(r.after), l1(r.before), l1(r.after), miss(r.before), miss(r.after));
+  std::printf(
+      "  jobs: %zu (%zu converged early, %zu stopped by the time budget); per job median %.0f ms (setup %.1f ms), "
+      "%.0f iterations, per iteration median %.2f ms; memory per ROI median %.1f MiB, max %.1f MiB\n",
+      r.jobs, r.converged, r.out_of_time, median(r.job_ms), median(r.setup_ms), median(r.iterations),
+      median(r.iteration_ms), median(r.memory_mb),
+      r.memory_mb.empty() ? 0.0 : *std::max_element(r.memory_mb.begin(), r.memory_mb.end()));
+  std::printf("  rays per job median: %.0f landing in the ROI, %.0f crossing it to a surface beyond\n", median(r.rays),
+              median(r.free_rays));
+  std::printf(
+      "  map rendering vs input depth inside each job's ROI, before -> after its write-back: median %.2f -> %.2f mm, "
+      "mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels\n",
+      med(r.before), med(r.after), l1(r.before), l1(r.after), miss(r.before), miss(r.after));
 }
 
 }  // namespace
@@ -262,8 +271,9 @@ int main(int argc, char** argv) {
     const Scores in_h = insideBoxes(r.hybrid_mesh, gt_mesh, r.boxes, observed, mp);
     const auto whole_d = alg::computeMeshMetrics(r.detail_mesh, gt_mesh, mp, &observed).point_to_surface;
     const Scores in_d = insideBoxes(r.detail_mesh, gt_mesh, r.boxes, observed, mp);
-    std::printf("quality room, %zu frames, %.0f cm voxels: mapping %.1f s TSDF only, %.1f s hybrid (jobs inline, one core)\n",
-                frames.size(), voxel * 100, r.tsdf_s, r.hybrid_s);
+    std::printf(
+        "quality room, %zu frames, %.0f cm voxels: mapping %.1f s TSDF only, %.1f s hybrid (jobs inline, one core)\n",
+        frames.size(), voxel * 100, r.tsdf_s, r.hybrid_s);
     std::printf("  mesh @1cm            precision  recall     F1\n");
     std::printf("  whole scene  TSDF     %6.1f%%  %6.1f%%  %6.1f%%\n", 100 * whole_t.precision_fine,
                 100 * whole_t.recall_fine, 100 * whole_t.f1_fine);

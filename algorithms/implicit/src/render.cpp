@@ -50,22 +50,50 @@ void stratified(float a, float b, int n, bool jitter, uint64_t& rng, float* out)
 }  // namespace
 
 std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframes, const Eigen::AlignedBox3f& box,
-                                     const ImplicitParams& params) {
-  std::vector<TrainingRay> rays;
+                                     const ImplicitParams& params,
+                                     const std::function<bool(const TrainingRay&)>& keep_free) {
+  std::vector<TrainingRay> rays, free_rays;
   const int stride = std::max(1, params.pixel_stride);
+  const bool want_free = keep_free && params.free_space_rays > 0;
+
   for (const KeyframeImages& kf : keyframes) {
     if (kf.depth.empty() || kf.depth.type() != CV_32F) continue;
     const bool color = !kf.rgb.empty() && kf.rgb.type() == CV_8UC3 && kf.rgb.size() == kf.depth.size();
     const bool normals = !kf.normal.empty() && kf.normal.type() == CV_32FC3 && kf.normal.size() == kf.depth.size();
     const Eigen::Vector3f origin = kf.T_world_cam.translation();
     const Eigen::Matrix3f R = kf.T_world_cam.linear();
-    for (int v = 0; v < kf.depth.rows; v += stride) {
+    // Only the pixels whose rays can meet the box: its corners' image
+    // (every pixel when the box reaches behind the camera).
+    int u0 = 0, v0 = 0, u1 = kf.depth.cols, v1 = kf.depth.rows;
+    {
+      const Eigen::Isometry3f T_cam_world = kf.T_world_cam.inverse();
+      float lo_u = std::numeric_limits<float>::max(), lo_v = lo_u, hi_u = -lo_u, hi_v = -lo_u;
+      bool behind = false;
+      for (int c = 0; c < 8 && !behind; ++c) {
+        const Eigen::Vector3f q = T_cam_world * box.corner(static_cast<Eigen::AlignedBox3f::CornerType>(c));
+        behind = !(q.z() > 1e-3f);
+        const float pu = static_cast<float>(kf.camera.fx) * q.x() / q.z() + static_cast<float>(kf.camera.cx);
+        const float pv = static_cast<float>(kf.camera.fy) * q.y() / q.z() + static_cast<float>(kf.camera.cy);
+        lo_u = std::min(lo_u, pu), hi_u = std::max(hi_u, pu), lo_v = std::min(lo_v, pv), hi_v = std::max(hi_v, pv);
+      }
+      if (!behind) {
+        u0 = static_cast<int>(std::clamp(std::floor(lo_u) - 1.0f, 0.0f, static_cast<float>(u1)));
+        v0 = static_cast<int>(std::clamp(std::floor(lo_v) - 1.0f, 0.0f, static_cast<float>(v1)));
+        u1 = static_cast<int>(std::clamp(std::ceil(hi_u) + 2.0f, 0.0f, static_cast<float>(u1)));
+        v1 = static_cast<int>(std::clamp(std::ceil(hi_v) + 2.0f, 0.0f, static_cast<float>(v1)));
+      }
+    }
+    u0 = (u0 + stride - 1) / stride * stride;  // on the stride's lattice
+    v0 = (v0 + stride - 1) / stride * stride;
+    for (int v = v0; v < v1; v += stride) {
       const float* zrow = kf.depth.ptr<float>(v);
-      for (int u = 0; u < kf.depth.cols; u += stride) {
+      for (int u = u0; u < u1; u += stride) {
         const float z = zrow[u];
         if (!(z > 0.0f) || !std::isfinite(z)) continue;
-        const Eigen::Vector3f p = kf.T_world_cam * kf.camera.backproject(static_cast<float>(u), static_cast<float>(v), z);
-        if (!box.contains(p)) continue;
+        const Eigen::Vector3f p =
+            kf.T_world_cam * kf.camera.backproject(static_cast<float>(u), static_cast<float>(v), z);
+        const bool inside = box.contains(p);
+        if (!inside && !want_free) continue;
         TrainingRay r;
         r.origin = origin;
         r.t_obs = (p - origin).norm();
@@ -73,6 +101,11 @@ std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframe
         r.dir = (p - origin) / r.t_obs;
         if (!clipToBox(box, origin, r.dir, r.t_in, r.t_out)) continue;
         r.keyframe = kf.id;
+        if (!inside) {
+          r.free_space = r.t_obs > r.t_out;
+          if (r.free_space && keep_free(r)) free_rays.push_back(r);
+          continue;
+        }
         if (color) {
           const cv::Vec3b c = kf.rgb.at<cv::Vec3b>(v, u);
           r.rgb = Eigen::Vector3f(c[0], c[1], c[2]) / 255.0f;
@@ -87,14 +120,17 @@ std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframe
       }
     }
   }
-  const auto cap = static_cast<size_t>(std::max(1, params.max_rays));
-  if (rays.size() > cap) {  // an even spread over all keyframes' rays
+  auto spread = [](std::vector<TrainingRay>& v, size_t cap) {  // an even spread over all keyframes' rays
+    if (v.size() <= cap) return;
     std::vector<TrainingRay> kept;
     kept.reserve(cap);
-    const double step = static_cast<double>(rays.size()) / static_cast<double>(cap);
-    for (size_t i = 0; i < cap; ++i) kept.push_back(rays[static_cast<size_t>(static_cast<double>(i) * step)]);
-    rays.swap(kept);
-  }
+    const double step = static_cast<double>(v.size()) / static_cast<double>(cap);
+    for (size_t i = 0; i < cap; ++i) kept.push_back(v[static_cast<size_t>(static_cast<double>(i) * step)]);
+    v.swap(kept);
+  };
+  spread(rays, static_cast<size_t>(std::max(1, params.max_rays)));
+  spread(free_rays, static_cast<size_t>(std::max(0, params.free_space_rays)));
+  rays.insert(rays.end(), free_rays.begin(), free_rays.end());
   return rays;
 }
 
@@ -156,9 +192,24 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
   RenderBatch b;
   if (rays.empty()) return b;
   if (which.empty()) {
-    const int n = std::max(1, params.rays_per_iteration);
-    which.resize(static_cast<size_t>(n));
-    for (auto& w : which) w = static_cast<int32_t>(nextRandom(rng) % rays.size());
+    const auto n = static_cast<size_t>(std::max(1, params.rays_per_iteration));
+    // Free-space rays come last (collectRays); they get their own share of
+    // the batch: a thick shadow takes many steps to clear, and at their
+    // share of the candidates (about a seventh) jobs converged first.
+    const auto first_free = static_cast<size_t>(
+        std::partition_point(rays.begin(), rays.end(), [](const TrainingRay& r) { return !r.free_space; }) -
+        rays.begin());
+    const size_t n_free = rays.size() - first_free;
+    const size_t k_free =
+        first_free == 0 ? n
+        : n_free == 0   ? 0
+                        : std::min(n, static_cast<size_t>(std::lround(static_cast<double>(n) *
+                                                                      std::clamp(params.free_space_share, 0.0, 1.0))));
+    which.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      which[k] =
+          static_cast<int32_t>(k < n - k_free ? nextRandom(rng) % first_free : first_free + nextRandom(rng) % n_free);
+    }
   }
   b.rays = std::move(which);
   const int N = std::max(4, params.samples_per_ray);
@@ -171,7 +222,13 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
     const TrainingRay& r = rays[static_cast<size_t>(b.rays[i])];
     float* t = &b.t[i * static_cast<size_t>(N)];
     const float th = hit[i];
-    if (th < 0.0f || std::abs(th - r.t_obs) <= 2.0f * band) {
+    if (r.free_space) {  // around the field's surface, or over the whole crossing
+      if (th >= 0.0f) {
+        stratified(th - band, th + band, N, jitter, rng, t);
+      } else {
+        stratified(r.t_in, r.t_out, N, jitter, rng, t);
+      }
+    } else if (th < 0.0f || std::abs(th - r.t_obs) <= 2.0f * band) {
       const float lo = (th < 0.0f ? r.t_obs : std::min(th, r.t_obs)) - band;
       const float hi = (th < 0.0f ? r.t_obs : std::max(th, r.t_obs)) + band;
       stratified(lo, hi, N, jitter, rng, t);
@@ -182,7 +239,7 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
       std::sort(t, t + N);
     }
     for (int k = 0; k < N; ++k) t[k] = std::clamp(t[k], r.t_in, r.t_out);
-    if (th >= 0.0f) with_hit.push_back(i);
+    if (th >= 0.0f && !r.free_space) with_hit.push_back(i);
   }
   // Regularizer points: traced surfaces first (with the measured normal),
   // then random samples (eikonal only).
@@ -275,11 +332,13 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
       for (int k = 0; k < M; ++k) rendering->transmittance[j0 + k] = T[k];
       rendering->transmittance[j0 + M] = Ti;
     }
-    const float rd = (D - r.t_obs) / vs;
+    // A free-space ray renders no surface in the box: its depth is the far
+    // end of its samples.
+    const float rd = (D - (r.free_space ? t_far : r.t_obs)) / vs;
     sum_depth += huber(rd, dd);
     const float dLdD = lam_d * inv_r * huberGrad(rd, dd) / vs;
     for (int k = 0; k < M; ++k) g[k] = dLdD * (0.5f * (t[k] + t[k + 1]) - t_far);
-    if (r.has_color && W > 0.1f) {
+    if (r.has_color && !r.free_space && W > 0.1f) {
       Eigen::Vector3f C = Eigen::Vector3f::Zero();
       for (int k = 0; k < M; ++k) {
         cbar[k] = 0.5f * (rgb.col(static_cast<Eigen::Index>(j0 + k)) + rgb.col(static_cast<Eigen::Index>(j0 + k + 1)));

@@ -146,6 +146,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("roi_max_extent_blocks", q.roi_max_extent_blocks, 1, 64);
   v.integer("roi_margin_voxels", q.roi_margin_voxels, 0, 64);
   v.integer("roi_max_keyframes", q.roi_max_keyframes, 1, 64);
+  v.boolean("spread_keyframes", q.spread_keyframes);
 
   auto& r = c.refine;
   auto& m = r.implicit;
@@ -166,6 +167,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("sharpness_voxels", m.sharpness_voxels, 0.01, 10);
   v.integer("sphere_trace_steps", m.sphere_trace_steps, 1, 1024);
   v.integer("max_rays", m.max_rays, 1, 1 << 24);
+  v.integer("free_space_rays", m.free_space_rays, 0, 1 << 24);
+  v.number("free_space_share", m.free_space_share, 0, 1);
   v.integer("pixel_stride", m.pixel_stride, 1, 64);
   v.number("lambda_photo", m.lambda_photo, 0, kBig);
   v.number("lambda_depth", m.lambda_depth, 0, kBig);
@@ -371,8 +374,9 @@ class Loader : public Visitor {
     });
     if (x.empty() || !chars_ok || x.front() == '/' || x.back() == '/' || x.find("//") != std::string::npos ||
         std::isdigit(static_cast<unsigned char>(x.front())) != 0) {
-      error(n, fmt::format("{}.{}: '{}' is not a valid name (letters, digits, '_' and inner '/', not starting with a digit)",
-                           section_, key, text(n)));
+      error(n, fmt::format(
+                   "{}.{}: '{}' is not a valid name (letters, digits, '_' and inner '/', not starting with a digit)",
+                   section_, key, text(n)));
       return;
     }
     v = x;
@@ -475,9 +479,11 @@ Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::s
   const double qn = std::sqrt(g.depth_to_color_qx * g.depth_to_color_qx + g.depth_to_color_qy * g.depth_to_color_qy +
                               g.depth_to_color_qz * g.depth_to_color_qz + g.depth_to_color_qw * g.depth_to_color_qw);
   if (std::abs(qn - 1.0) > 1e-3) {
-    errors.push_back(fmt::format("{}: rig.depth_to_color_q{{x,y,z,w}}: the quaternion's norm is {:.6f}, not 1", source, qn));
+    errors.push_back(
+        fmt::format("{}: rig.depth_to_color_q{{x,y,z,w}}: the quaternion's norm is {:.6f}, not 1", source, qn));
   }
-  if (!errors.empty()) return Error{fmt::format("{} problem(s) in the configuration:\n{}", errors.size(), fmt::join(errors, "\n"))};
+  if (!errors.empty())
+    return Error{fmt::format("{} problem(s) in the configuration:\n{}", errors.size(), fmt::join(errors, "\n"))};
   return config;
 }
 

@@ -10,6 +10,7 @@
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/patch.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
 
 namespace hxmap::alg {
 namespace {
@@ -47,7 +48,8 @@ KeyframeImages planeView(uint32_t id, const Eigen::Isometry3f& T, float plane_z)
   k.rgb = cv::Mat(kCam.height, kCam.width, CV_8UC3, cv::Scalar(0, 0, 0));
   k.normal = cv::Mat(kCam.height, kCam.width, CV_32FC3, cv::Scalar(0, 0, 0));
   const Eigen::Matrix3f R_cw = T.linear().transpose();
-  const Eigen::Vector3f n_cam = R_cw * Eigen::Vector3f(0, 0, -1);  // the plane faces the cameras (they sit at z < plane)
+  const Eigen::Vector3f n_cam =
+      R_cw * Eigen::Vector3f(0, 0, -1);  // the plane faces the cameras (they sit at z < plane)
   for (int v = 0; v < kCam.height; ++v) {
     for (int u = 0; u < kCam.width; ++u) {
       const Eigen::Vector3f ray_c = kCam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
@@ -185,7 +187,8 @@ TEST_F(PlaneScene, UntrainedFieldIsTheTsdf) {
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   int compared = 0;
   for (int i = 0; i < 200; ++i) {
-    const Eigen::Vector3f q = f.box().min() + (f.box().max() - f.box().min()).cwiseProduct(Eigen::Vector3f(u(rng), u(rng), u(rng)));
+    const Eigen::Vector3f q =
+        f.box().min() + (f.box().max() - f.box().min()).cwiseProduct(Eigen::Vector3f(u(rng), u(rng), u(rng)));
     float expected = 0;
     if (!map_.sample(q, 0.0f, expected)) continue;
     Eigen::Matrix3Xf pts(3, 1);
@@ -211,7 +214,8 @@ TEST_F(PlaneScene, FieldBackwardMatchesFiniteDifferences) {
   }
   Eigen::VectorXf a(n);
   Eigen::Matrix3Xf b(3, n);
-  for (int j = 0; j < n; ++j) a[j] = u(rng) - 0.5f, b.col(j) = Eigen::Vector3f(u(rng), u(rng), u(rng)) - Eigen::Vector3f::Constant(0.5f);
+  for (int j = 0; j < n; ++j)
+    a[j] = u(rng) - 0.5f, b.col(j) = Eigen::Vector3f(u(rng), u(rng), u(rng)) - Eigen::Vector3f::Constant(0.5f);
   auto loss = [&]() {
     Eigen::VectorXf s;
     Eigen::Matrix3Xf c;
@@ -249,10 +253,15 @@ TEST_F(PlaneScene, LossGradientMatchesFiniteDifferences) {
   p.rays_per_iteration = 24;
   NeuralField f(map_, map_.voxelOf(box_.min()), Eigen::Vector3i(8, 8, 10), p);
   perturbDecoder(f, 13);
-  const std::vector<TrainingRay> rays = collectRays(keyframes_, f.box(), p);
+  // With free-space rays (every ray that crosses the box to the plane
+  // beyond it), a quarter of the batch.
+  const std::vector<TrainingRay> rays = collectRays(keyframes_, f.box(), p, [](const TrainingRay&) { return true; });
   ASSERT_GT(rays.size(), 100u);
   uint64_t rng = 3;
   const RenderBatch batch = sampleBatch(f, rays, {}, p, true, rng);
+  int free_rays = 0;
+  for (int32_t i : batch.rays) free_rays += rays[static_cast<size_t>(i)].free_space;
+  EXPECT_EQ(free_rays, 6);
   std::vector<float> grad(f.parameters().size(), 0.0f);
   std::vector<int32_t> touched;
   const LossTerms L = evaluateLoss(f, rays, batch, p, &grad, &touched);
@@ -376,7 +385,8 @@ TEST_F(PlaneScene, KeyframeNoiseAloneBarelyMovesTheMap) {
   applyPatch(refined, r.patch);
   double worst = 0;
   for (float x = 0.04f; x <= 0.12f; x += 0.02f) {
-    for (float y = 0.04f; y <= 0.12f; y += 0.02f) worst = std::max(worst, std::abs(double(surfaceZ(refined, x, y)) - kTrueZ));
+    for (float y = 0.04f; y <= 0.12f; y += 0.02f)
+      worst = std::max(worst, std::abs(double(surfaceZ(refined, x, y)) - kTrueZ));
   }
   EXPECT_LT(worst, 0.002) << "the noise leaked into the map";
 }
@@ -398,6 +408,81 @@ TEST_F(PlaneScene, WriteBackOfAnUntrainedFieldKeepsTheMap) {
     EXPECT_NEAR(a.sdf_m, b.sdf_m, 1e-5f);
     EXPECT_LE(std::abs(a.color.r - b.color.r), 1);
   }
+}
+
+TEST(ShadowScene, RaysThatSawThroughAShadowClearItAndFusionKeepsItClear) {
+  // The map holds a wall at z = 0.8 m and, inside the box, a 4 cm slab of
+  // surface nothing observed: what fusion leaves behind a thin part, up to
+  // mu deep. The keyframes see the wall through it. Refinement must clear
+  // the slab from the free-space rays alone (no keyframe surface lies in
+  // the box), flag it seen through, and later fusion of a view that puts
+  // the slab behind a surface must not fill it again.
+  TsdfMap map{tsdfParams()};
+  std::vector<KeyframeImages> keyframes;
+  uint32_t id = 0;
+  for (const auto& T : viewPoses()) {
+    keyframes.push_back(planeView(id++, T, 0.8f));
+    fuse(map, keyframes.back());
+  }
+  const Eigen::AlignedBox3f box(Eigen::Vector3f(0.0f, 0.0f, 0.40f), Eigen::Vector3f(0.16f, 0.16f, 0.60f));
+  const Eigen::AlignedBox3f slab(Eigen::Vector3f(0.04f, 0.04f, 0.50f), Eigen::Vector3f(0.12f, 0.12f, 0.54f));
+  const float mu = map.truncation();
+  TsdfPatch fill;
+  std::vector<Eigen::Vector3i> inside;
+  for (int z = 20; z < 30; ++z) {
+    for (int y = 0; y < 8; ++y) {
+      for (int x = 0; x < 8; ++x) {
+        const Eigen::Vector3i v(x, y, z);
+        const Eigen::Vector3f c = map.voxelCenter(v);
+        const Eigen::Vector3f q = (c - slab.center()).cwiseAbs() - 0.5f * slab.sizes();
+        const float d = q.cwiseMax(0.0f).norm() + std::min(q.maxCoeff(), 0.0f);  // box signed distance
+        fill.entries.push_back({v, std::clamp(d, -mu, mu), 4.0f});               // four views' worth
+        if (d < 0.0f) inside.push_back(v);
+      }
+    }
+  }
+  applyPatch(map, fill);
+  ASSERT_EQ(inside.size(), 32u);
+  // Slab voxels inside a surface; outside it (and flagged seen through).
+  auto count = [&](const TsdfMap& m, bool outside_flagged) {
+    int n = 0;
+    for (const auto& v : inside) {
+      Voxel vx;
+      if (!m.voxel(v, vx)) continue;
+      n += outside_flagged ? vx.sdf_m > 0.0f && (vx.color.flags & kVoxelSeenThrough) : vx.sdf_m < 0.0f;
+    }
+    return n;
+  };
+  ASSERT_EQ(count(map, false), 32);
+
+  ImplicitParams p = smallParams();
+  p.iterations = 120;
+  p.convergence_rel = 0;
+  RoiRefiner refiner(map, box, keyframes, p);
+  while (refiner.iterate(10)) {
+  }
+  RefineResult r = refiner.result();
+  EXPECT_GT(r.stats.free_space_rays, 100u);
+  EXPECT_EQ(r.stats.free_space_rays, r.stats.rays);
+  TsdfMap refined = map;
+  applyPatch(refined, r.patch);
+  EXPECT_LE(count(refined, false), 3) << "of 32 slab voxels still inside a surface";
+  const int flagged = count(refined, true);
+  EXPECT_GE(flagged, 29);
+
+  // A surface just in front of the slab (z = 0.485 m) seen head on, forty
+  // times: the slab lies 2.5-4.5 cm behind it. Without the flags it fills
+  // in.
+  TsdfMap unflagged = map;
+  for (auto& e : r.patch.entries) e.seen_through = false;
+  applyPatch(unflagged, r.patch);
+  const KeyframeImages occluder = planeView(99, viewPoses()[0], 0.485f);
+  for (int i = 0; i < 40; ++i) {
+    fuse(refined, occluder);
+    fuse(unflagged, occluder);
+  }
+  EXPECT_EQ(count(refined, true), flagged) << "the slab stays clear";
+  EXPECT_GE(count(unflagged, false), 16) << "without the flags fusion fills the slab again";
 }
 
 TEST_F(PlaneScene, BadKeyframesAreSkipped) {

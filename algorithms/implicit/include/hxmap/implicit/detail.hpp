@@ -64,9 +64,9 @@ struct RefinedDetail {
 };
 
 /// The map's mesh with each detail's box meshed at the detail's resolution
-/// (marching cubes over its nodes, hybridAt of the map's trilinear SDF). A triangle belongs to the last detail whose box holds
-/// its centroid, else to the map's own mesh; `details` run oldest first.
-/// Colors (params.with_colors) are the map's, sampled at the vertices.
+/// (marching cubes over its nodes, hybridAt of the map's trilinear SDF). A triangle belongs to the last detail whose
+/// box holds its centroid, else to the map's own mesh; `details` run oldest first. Colors (params.with_colors) are the
+/// map's, sampled at the vertices.
 TriangleMesh extractHybridMesh(const TsdfMap& map, const MeshParams& params,
                                const std::vector<std::shared_ptr<const RefinedDetail>>& details);
 

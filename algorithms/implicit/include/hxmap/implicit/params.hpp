@@ -11,10 +11,10 @@ struct ImplicitParams {
   // signed distance and normal) and fine_per_voxel nodes per voxel (a signed
   // distance detail, zero at start). F_tex has one node per voxel (color).
   int fine_per_voxel = 2;
-  int fuse_width = 16;          ///< Phi_fuse output features
-  int hidden_width = 32;        ///< decoder hidden layer
-  int encoding_frequencies = 2; ///< sin/cos octaves of the local position
-  uint64_t seed = 1;            ///< initial weights and ray sampling
+  int fuse_width = 16;           ///< Phi_fuse output features
+  int hidden_width = 32;         ///< decoder hidden layer
+  int encoding_frequencies = 2;  ///< sin/cos octaves of the local position
+  uint64_t seed = 1;             ///< initial weights and ray sampling
 
   // Rendering (confined to the ROI box).
   int rays_per_iteration = 256;
@@ -22,8 +22,13 @@ struct ImplicitParams {
   double sample_band_voxels = 1.5;  ///< samples within this of the surface (and of the observed depth)
   double sharpness_voxels = 0.2;    ///< SDF-to-opacity logistic scale (NeuS s^-1)
   int sphere_trace_steps = 24;
-  int max_rays = 20000;             ///< candidate rays kept from the ROI's keyframes
-  int pixel_stride = 1;             ///< candidate pixels at the keyframe level
+  int max_rays = 20000;  ///< candidate rays kept from the ROI's keyframes
+  /// Rays that cross the box to a surface beyond it where the TSDF has
+  /// surface in the box on their way (what other views saw through), kept
+  /// besides max_rays; 0: none.
+  int free_space_rays = 4000;
+  double free_space_share = 0.25;  ///< of each iteration's rays, when there are such rays
+  int pixel_stride = 1;            ///< candidate pixels at the keyframe level
 
   // Loss (eq 10).
   double lambda_photo = 0.2;
@@ -37,9 +42,9 @@ struct ImplicitParams {
   // Optimizer (Adam, lazy on the grids: only entries a sample touched move).
   double learning_rate_grid = 0.02;
   double learning_rate_mlp = 0.005;
-  int iterations = 150;             ///< cap per job
-  double time_budget_ms = 1500.0;   ///< cap per job (cooperative: checked between slices)
-  int slice_iterations = 1;         ///< iterations per scheduler slice (one is about 5-10 ms)
+  int iterations = 150;            ///< cap per job
+  double time_budget_ms = 1500.0;  ///< cap per job (cooperative: checked between slices)
+  int slice_iterations = 1;        ///< iterations per scheduler slice (one is about 5-10 ms)
   /// Early stop: the smoothed loss improved by less than this share over
   /// the last `patience` iterations.
   double convergence_rel = 0.002;

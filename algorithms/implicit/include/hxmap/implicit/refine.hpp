@@ -25,9 +25,10 @@ namespace hxmap::alg {
 
 struct RefineStats {
   int iterations = 0;
-  bool converged = false;  ///< stopped early: the loss stopped improving
-  LossTerms first, last;   ///< loss of the first and the last iteration
-  size_t rays = 0;         ///< candidate rays from the keyframes
+  bool converged = false;      ///< stopped early: the loss stopped improving
+  LossTerms first, last;       ///< loss of the first and the last iteration
+  size_t rays = 0;             ///< candidate rays from the keyframes
+  size_t free_space_rays = 0;  ///< of which cross the box to a surface beyond it
   size_t parameters = 0;
   size_t memory_bytes = 0;  ///< field, optimizer state and rays
   /// Mean |rendered - observed| depth over a fixed set of rays, with the
@@ -66,8 +67,10 @@ class RoiRefiner {
   const NeuralField& field() const { return field_; }
   const std::vector<TrainingRay>& rays() const { return rays_; }
   /// Per coarse node (voxel of the box): a training sample that light still
-  /// reached came near it, i.e. the renderings constrain the field there.
+  /// reached came near it, i.e. the renderings constrain the field there
+  /// (kSeen; kSeenThrough besides when the sample was a free-space ray's).
   const std::vector<uint8_t>& seen() const { return seen_; }
+  static constexpr uint8_t kSeen = 1, kSeenThrough = 2;
 
   /// (Finishes the preparation first if the job was stopped before.)
   /// Write-back (eq 11): the field's signed distance at every voxel center
@@ -107,9 +110,9 @@ class RoiRefiner {
   ImplicitParams params_;
   NeuralField field_;
   std::vector<TrainingRay> rays_;
-  std::vector<float> snapshot_weight_;  ///< per voxel of the box
-  std::vector<float> snapshot_sdf_;     ///< per voxel of the box, clamped to mu
-  std::vector<uint32_t> snapshot_updates_;  ///< per voxel: observations fused
+  std::vector<float> snapshot_weight_;           ///< per voxel of the box
+  std::vector<float> snapshot_sdf_;              ///< per voxel of the box, clamped to mu
+  std::vector<uint32_t> snapshot_updates_;       ///< per voxel: observations fused
   std::vector<Eigen::Vector3f> surface_offset_;  ///< per voxel: to its nearest fused surface
   std::vector<int32_t> eval_rays_;
   // Adam state.

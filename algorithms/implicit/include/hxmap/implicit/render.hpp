@@ -26,6 +26,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -47,22 +48,28 @@ struct KeyframeImages {
   cv::Mat normal;  ///< CV_32FC3 camera-frame unit normals (0 = none), or empty
 };
 
-/// A keyframe pixel whose observed surface lies in the field's box.
+/// A keyframe pixel whose observed surface lies in the field's box, or
+/// beyond it (free_space: the ray crosses the box through empty space).
 struct TrainingRay {
   Eigen::Vector3f origin = Eigen::Vector3f::Zero();
   Eigen::Vector3f dir = Eigen::Vector3f::UnitZ();  ///< unit
-  float t_in = 0, t_out = 0;  ///< the ray inside the box
-  float t_obs = 0;            ///< observed surface distance along the ray
+  float t_in = 0, t_out = 0;                       ///< the ray inside the box
+  float t_obs = 0;                                 ///< observed surface distance along the ray
   Eigen::Vector3f rgb = Eigen::Vector3f::Zero();
   Eigen::Vector3f normal = Eigen::Vector3f::Zero();  ///< world frame, 0 = unknown
   bool has_color = false;
+  bool free_space = false;  ///< t_obs lies beyond the box: no surface inside
   uint32_t keyframe = 0;
 };
 
 /// Rays of the keyframes' pixels (every pixel_stride-th) whose depth lands
-/// in `box`, at most params.max_rays (an even spread when more).
+/// in `box`, at most params.max_rays (an even spread when more). With
+/// `keep_free`, then the rays that cross the box and observe a surface
+/// beyond it (past t_out by more than twice the sample band) that
+/// `keep_free` accepts, at most params.free_space_rays (an even spread).
 std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframes, const Eigen::AlignedBox3f& box,
-                                     const ImplicitParams& params);
+                                     const ImplicitParams& params,
+                                     const std::function<bool(const TrainingRay&)>& keep_free = {});
 
 /// The first zero crossing of the field along each ray in [t_in, t_out]
 /// (sphere tracing, a sign change refined linearly); -1 when none, or when
@@ -72,9 +79,9 @@ std::vector<float> sphereTrace(const NeuralField& field, const std::vector<Train
 
 /// The samples of one iteration.
 struct RenderBatch {
-  std::vector<int32_t> rays;  ///< indices into the candidate rays
-  int samples = 0;            ///< per ray
-  std::vector<float> t;       ///< rays.size() * samples, ascending per ray
+  std::vector<int32_t> rays;                 ///< indices into the candidate rays
+  int samples = 0;                           ///< per ray
+  std::vector<float> t;                      ///< rays.size() * samples, ascending per ray
   std::vector<Eigen::Vector3f> reg_points;   ///< normal / eikonal points
   std::vector<Eigen::Vector3f> reg_normals;  ///< measured normal at each, 0 = eikonal only
 };
