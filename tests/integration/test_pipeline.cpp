@@ -1,5 +1,6 @@
 // The frontend end to end on synthetic sequences with exact ground truth,
 // including frames with no depth and corrupt frames.
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -168,6 +169,30 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   fe.applyRefinement(runRefineJob(job, p.implicit));
   ASSERT_EQ(fe.implicitSurfaces().size(), 1u);
   EXPECT_NE(fe.implicitSurfaces().front().get(), o.surface.get());
+}
+
+TEST_F(Pipeline, RefineJobsTrainOnKeyframesOlderThanTheImagePoolsLength) {
+  // A pool of 4 keyframe images. It evicts the image fewest quality-map
+  // blocks keep, so jobs still get views older than the last 4 keyframes
+  // (a first-in first-out pool never gives them one).
+  FrontendParams p;
+  p.keyframe_images = 4;
+  Frontend fe(kCam, p);
+  fe.setInitialPose(traj_[0].T_world_cam);
+  size_t jobs = 0, old_images = 0;
+  for (int i = 0; i < sp_.frames; ++i) {
+    fe.process(frame(i));
+    for (auto& j : fe.takeRefineJobs()) {
+      ++jobs;
+      EXPECT_LE(j.keyframes.size(), 4u);
+      for (const auto& k : j.keyframes) {
+        EXPECT_NE(std::find(j.roi.keyframes.begin(), j.roi.keyframes.end(), k.id), j.roi.keyframes.end());
+        old_images += j.keyframe_id - k.id >= 4;
+      }
+    }
+  }
+  EXPECT_GT(jobs, 0u);
+  EXPECT_GT(old_images, 0u);
 }
 
 TEST_F(Pipeline, BlankedDepthIsReportedDoesNotTouchTheMapAndRecovers) {
