@@ -391,6 +391,28 @@ TEST_F(PlaneScene, KeyframeNoiseAloneBarelyMovesTheMap) {
   EXPECT_LT(worst, 0.002) << "the noise leaked into the map";
 }
 
+TEST_F(PlaneScene, AFieldThatRendersWorseThanTheTsdfWritesNothingBack) {
+  // The map fused from the true plane, the keyframes exact: the TSDF
+  // renders them within a fraction of a millimetre. A field trained with
+  // learning rates far too high ends worse than that; no voxel of it may
+  // reach the map.
+  TsdfMap clean{tsdfParams()};
+  for (int rep = 0; rep < 8; ++rep) {
+    for (const auto& T : viewPoses()) fuse(clean, planeView(0, T, kTrueZ));
+  }
+  ImplicitParams p = smallParams();
+  p.iterations = 40;
+  p.convergence_rel = 0;
+  p.learning_rate_grid = 1.0;
+  p.learning_rate_mlp = 0.3;
+  RoiRefiner refiner(clean, box_, keyframes_, p);
+  while (refiner.iterate(10)) {
+  }
+  const RefineResult r = refiner.result();
+  EXPECT_GT(r.stats.depth_l1_after_m, 2.0 * r.stats.depth_l1_before_m) << "the field should have diverged";
+  EXPECT_TRUE(r.patch.entries.empty()) << r.patch.entries.size() << " voxels written back";
+}
+
 TEST_F(PlaneScene, WriteBackOfAnUntrainedFieldKeepsTheMap) {
   ImplicitParams p = smallParams();
   EXPECT_TRUE(RoiRefiner(map_, box_, keyframes_, p).result().patch.entries.empty());  // no sample reached a voxel yet

@@ -133,7 +133,14 @@ class RoiRefiner {
     double sum = 0, sum_sq = 0;
     int rays = 0;
     uint64_t keyframes = 0;  ///< bit (id % 64) per keyframe seen
+    // |rendered - observed| of the rays whose observed surface lies in the
+    // cell: the TSDF's (before training) and the field's (training
+    // batches, recent iterations weighted most).
+    double tsdf_abs = 0, field_abs = 0, field_w = 0;
+    int tsdf_abs_rays = 0;
   };
+  size_t cellIndex(const Eigen::Vector3f& p_world) const;
+  static constexpr double kFieldErrorDecay = 0.98;  ///< per iteration
   Eigen::Vector3i cell_dims_ = Eigen::Vector3i::Zero();
   std::vector<Cell> cells_;
   std::vector<uint8_t> seen_;  ///< per coarse node (voxel): a visible sample came near
