@@ -112,7 +112,6 @@ void RoiRefiner::measureTsdfBias(const std::vector<int32_t>& which) {
   if (which.empty()) return;
   Rendering rendering;
   const RenderBatch b = renderRays(which, rendering);
-  const float vs = field_.voxelSize();
   for (size_t i = 0; i < b.rays.size(); ++i) {
     const TrainingRay& r = rays_[static_cast<size_t>(b.rays[i])];
     // Binned where the TSDF renders the surface (where it has one): binning
@@ -124,10 +123,7 @@ void RoiRefiner::measureTsdfBias(const std::vector<int32_t>& which) {
     // (a bias: surface where a view saw through).
     if (r.free_space && !rendered) continue;
     const float t_bin = rendered ? rendering.depth[i] : r.t_obs;
-    const Eigen::Vector3f q = (r.origin + t_bin * r.dir - field_.box().min()) / vs + Eigen::Vector3f::Constant(0.5f);
-    Eigen::Vector3i c;
-    for (int a = 0; a < 3; ++a) c[a] = std::clamp(floorToInt(q[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
-    Cell& cell = cells_[(static_cast<size_t>(c.z()) * cell_dims_.y() + c.y()) * cell_dims_.x() + c.x()];
+    Cell& cell = cells_[cellIndex(r.origin + t_bin * r.dir)];
     const double e = rendering.depth[i] - (r.free_space ? t_far : r.t_obs);
     cell.sum += e;
     cell.sum_sq += e * e;
@@ -142,7 +138,10 @@ void RoiRefiner::measureTsdfBias(const std::vector<int32_t>& which) {
 }
 
 size_t RoiRefiner::cellIndex(const Eigen::Vector3f& p_world) const {
-  const Eigen::Vector3f q = (p_world - field_.box().min()) / field_.voxelSize() + Eigen::Vector3f::Constant(0.5f);
+  return cellOf((p_world - field_.box().min()) / field_.voxelSize() + Eigen::Vector3f::Constant(0.5f));
+}
+
+size_t RoiRefiner::cellOf(const Eigen::Vector3f& q) const {
   Eigen::Vector3i c;
   for (int a = 0; a < 3; ++a) c[a] = std::clamp(floorToInt(q[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
   return (static_cast<size_t>(c.z()) * cell_dims_.y() + c.y()) * cell_dims_.x() + c.x();
@@ -167,9 +166,7 @@ float RoiRefiner::writebackRatio(int x, int y, int z) const {
       Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
       surface_offset_[(static_cast<size_t>(z) * n_vox.y() + y) * n_vox.x() + x] / field_.voxelSize() +
       Eigen::Vector3f::Constant(0.5f);
-  Eigen::Vector3i ci;
-  for (int a = 0; a < 3; ++a) ci[a] = std::clamp(floorToInt(at[a]) / kCellVoxels, 0, cell_dims_[a] - 1);
-  const Cell& c = cells_[(static_cast<size_t>(ci.z()) * cell_dims_.y() + ci.y()) * cell_dims_.x() + ci.x()];
+  const Cell& c = cells_[cellOf(at)];
   // DESIGN: no write-back where the field renders the keyframes no better
   // than the TSDF did (mean |rendered - observed| depth of the rays whose
   // surface lies in the cell: the TSDF's before training, the field's over
@@ -340,6 +337,9 @@ RefineResult RoiRefiner::result() {
   std::vector<Eigen::Vector3i> voxels;
   std::vector<float> weights;
   std::vector<size_t> nodes;
+  // Where a free-space ray saw through a voxel the snapshot holds inside:
+  // the field's largest share there (see below), else 0.
+  std::vector<float> through_ratios;
   // For the detail layer: the field's share of each written-back voxel.
   std::vector<float> share(snapshot_weight_.size(), 0.0f);
   for (int z = 0; z < n.z(); ++z) {
@@ -356,10 +356,12 @@ RefineResult RoiRefiner::result() {
         const float blend = std::min(1.0f, static_cast<float>(d) / ramp);
         if (blend <= 0.0f) continue;
         const float ratio = writebackRatio(x, y, z) * blend;
-        if (!(ratio > 0.0f) && !((seen_[node] & kSeenThrough) && snapshot_sdf_[node] < 0.0f)) continue;
+        const bool through = (seen_[node] & kSeenThrough) && snapshot_sdf_[node] < 0.0f;
+        if (!(ratio > 0.0f) && !through) continue;
         voxels.push_back(vmin + Eigen::Vector3i(x, y, z));
         weights.push_back(ratio * w0);
         nodes.push_back(node);
+        through_ratios.push_back(through ? static_cast<float>(params_.writeback_weight_ratio) * blend : 0.0f);
         share[node] = ratio / (1.0f + ratio);
       }
     }
@@ -391,13 +393,8 @@ RefineResult RoiRefiner::result() {
       // cleared 130 of a rod's 169 shadow voxels and 18 stayed cleared
       // after the blend.
       const size_t node = nodes[i];
-      if ((seen_[node] & kSeenThrough) && snapshot_sdf_[node] < 0.0f && e.sdf_m > 0.0f) {
-        const int x = static_cast<int>(node % static_cast<size_t>(n.x()));
-        const int y = static_cast<int>(node / static_cast<size_t>(n.x()) % static_cast<size_t>(n.y()));
-        const int z = static_cast<int>(node / (static_cast<size_t>(n.x()) * static_cast<size_t>(n.y())));
-        const int d = std::min({x, y, z, n.x() - 1 - x, n.y() - 1 - y, n.z() - 1 - z});
-        const float ratio =
-            static_cast<float>(params_.writeback_weight_ratio) * std::min(1.0f, static_cast<float>(d) / ramp);
+      if (through_ratios[i] > 0.0f && e.sdf_m > 0.0f) {
+        const float ratio = through_ratios[i];
         e.weight = std::max(e.weight, ratio * snapshot_weight_[node]);
         e.seen_through = true;
         share[node] = std::max(share[node], ratio / (1.0f + ratio));

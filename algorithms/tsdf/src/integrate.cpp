@@ -288,14 +288,13 @@ inline bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[
 // outside the surface by one job were inside again ten keyframes later.
 // Only blocks with a flagged voxel pay for the check (the flags sit with
 // the colors, away from the geometry the row loop reads).
-inline void maskSeenThrough(const RowLookup& c, VoxelBlock& block, int i0, const float* tsdf, float* w,
-                            int n = kBlockSide) {
+inline void maskSeenThrough(float voxel, VoxelBlock& block, int i0, const float* tsdf, float* w, int n = kBlockSide) {
   for (int x = 0; x < n; ++x) {
     uint8_t& flags = block.color[i0 + x].flags;
     if (!(flags & kVoxelSeenThrough) || w[x] <= 0.0f) continue;
-    if (tsdf[x] < -c.voxel) {
+    if (tsdf[x] < -voxel) {
       w[x] = 0.0f;
-    } else if (tsdf[x] <= c.voxel) {
+    } else if (tsdf[x] <= voxel) {
       flags &= static_cast<uint8_t>(~kVoxelSeenThrough);
     }
   }
@@ -316,7 +315,7 @@ inline void forEachUpdatedRow(const RowLookup& c, VoxelBlock& block, const Eigen
       const uint8_t* rgb[kBlockSide];
       if (!lookupRow(c, p0, tsdf, w, rgb)) continue;
       const int i0 = VoxelBlock::index(0, y, z);
-      if (flagged) maskSeenThrough(c, block, i0, tsdf, w);
+      if (flagged) maskSeenThrough(c.voxel, block, i0, tsdf, w);
       body(i0, tsdf, w, rgb);
     }
   }
@@ -438,12 +437,7 @@ IntegrationStats integrateReference(TsdfMap& map, const DepthObservation& obs) {
       VoxelBlock& blk = map.block(b);
       float w = static_cast<float>(c);
       if (blk.seen_through) {
-        const RowLookup lookup{{}, {}, {}, 0, 0, 0, 0, 0, 0, static_cast<float>(mu), map.voxelSize(), nullptr, 0};
-        float row_tsdf[kBlockSide] = {}, row_w[kBlockSide] = {};
-        row_tsdf[0] = tsdf;
-        row_w[0] = w;
-        maskSeenThrough(lookup, blk, i, row_tsdf, row_w, 1);
-        w = row_w[0];
+        maskSeenThrough(map.voxelSize(), blk, i, &tsdf, &w, 1);
         if (!(w > 0.0f)) continue;
       }
       const float a = fuseGeometry(blk, i, tsdf, w, static_cast<float>(map.params().max_weight));

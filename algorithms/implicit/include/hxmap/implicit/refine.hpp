@@ -140,6 +140,7 @@ class RoiRefiner {
     int tsdf_abs_rays = 0;
   };
   size_t cellIndex(const Eigen::Vector3f& p_world) const;
+  size_t cellOf(const Eigen::Vector3f& q) const;    ///< q in voxels of the box, +0.5 (voxel centers at integers + 0.5)
   static constexpr double kFieldErrorDecay = 0.98;  ///< per iteration
   Eigen::Vector3i cell_dims_ = Eigen::Vector3i::Zero();
   std::vector<Cell> cells_;
