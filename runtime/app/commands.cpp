@@ -15,12 +15,12 @@
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/parsers.hpp"
 #include "hxmap/dataset/ply.hpp"
-#include "hxmap/runtime/realtime.hpp"
-#include "hxmap/runtime/trace.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/runtime/realtime.hpp"
+#include "hxmap/runtime/trace.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "parallel.hpp"
 #include "progress.hpp"
@@ -167,7 +167,12 @@ int runCommand(const RunOptions& o) {
   dopt.undistort = c.dataset.undistort;
   dopt.max_association_s = c.dataset.max_association_s;
   dopt.depth_scale = c.camera.depth_scale;
-  alg::PinholeCamera user_cam{c.camera.fx, c.camera.fy, c.camera.cx, c.camera.cy, c.camera.width, c.camera.height,
+  alg::PinholeCamera user_cam{c.camera.fx,
+                              c.camera.fy,
+                              c.camera.cx,
+                              c.camera.cy,
+                              c.camera.width,
+                              c.camera.height,
                               {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
   dopt.camera = user_cam;
   dopt.force_camera = c.camera.override_dataset;
@@ -181,9 +186,10 @@ int runCommand(const RunOptions& o) {
     dataset = std::move(*opened);
     const drv::Dataset& ds = *dataset;
     const auto& k = ds.camera();
-    spdlog::info("dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
-                 ds.dir(), ds.size(), k.width, k.height, k.fx, k.fy, k.cx, k.cy, ds.cameraSource(),
-                 ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
+    spdlog::info(
+        "dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
+        ds.dir(), ds.size(), k.width, k.height, k.fx, k.fy, k.cx, k.cy, ds.cameraSource(),
+        ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
   }
   const alg::PinholeCamera cam = camera ? camera->camera() : dataset->camera();
   const Trajectory no_ground_truth;
@@ -208,12 +214,14 @@ int runCommand(const RunOptions& o) {
       return 2;
     }
     publisher = std::move(*started);
-    spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix, c.dds.domain_id);
+    spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix,
+                 c.dds.domain_id);
   }
 #else
   if (o.dds || c.dds.enabled) {
-    spdlog::error("dds: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
-                  "configure and build again)");
+    spdlog::error(
+        "dds: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
+        "configure and build again)");
     return 2;
   }
 #endif
@@ -248,7 +256,7 @@ int runCommand(const RunOptions& o) {
   StopSignals signals;
   const auto t_start = std::chrono::steady_clock::now();
   TraceRecorder trace;
-  trace.nameThread(1, "frontend");  // offline run
+  trace.nameThread(1, "frontend");     // offline run
   trace.nameThread(2, "hx-frontend");  // --realtime
   auto since_start = [&](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
@@ -270,7 +278,8 @@ int runCommand(const RunOptions& o) {
     // threads; a camera's frames go through them as they come.
     const double mib = static_cast<double>(frames.size()) * cam.width * cam.height * 7 / (1 << 20);
     if (mib > 8192) {
-      spdlog::error("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames", frames.size(), mib);
+      spdlog::error("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames",
+                    frames.size(), mib);
       return 2;
     }
     std::vector<RgbdFrame> loaded;
@@ -322,7 +331,8 @@ int runCommand(const RunOptions& o) {
     for (const auto& r : rs.results) tally(r);
     realtime_report = rs.report;
     stopped = rs.stopped_early;
-    end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed, rs.refine_jobs_shed, 0};
+    end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed,
+                    rs.refine_jobs_shed, 0};
   }
   std::optional<SerialFeedback> feedback;
   if (fp.feedback.enabled && !realtime) feedback.emplace(fp.feedback);
@@ -374,9 +384,10 @@ int runCommand(const RunOptions& o) {
     const double sum = tally(r);
 #ifdef HXMAP_HAVE_DDS
     if (publisher) {
-      publisher->onFrame(r, frontend.map(), frontend.trajectory(),
-                         RunCounters{bad_frames, 0, refine.jobs, 0, since_start(std::chrono::steady_clock::now()) * 1e-6 -
-                                                                         since_start(t_load) * 1e-6});
+      publisher->onFrame(
+          r, frontend.map(), frontend.trajectory(),
+          RunCounters{bad_frames, 0, refine.jobs, 0,
+                      since_start(std::chrono::steady_clock::now()) * 1e-6 - since_start(t_load) * 1e-6});
     }
 #endif
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
@@ -413,14 +424,15 @@ int runCommand(const RunOptions& o) {
   summary += fmt::format("frames: processed {}, tracked {}, lost {}, unreadable skipped {}, keyframes {}\n",
                          total_ms.size(), tracked, frontend.lostFrames(), bad_frames, frontend.keyframes());
   const auto mem = frontend.map().memory();
-  summary += fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",
-                         c.tsdf.voxel_size_m * 100, c.tsdf.truncation_m * 100, mem.blocks,
-                         static_cast<double>(mem.bytes) / (1 << 20), mesh.vertices.size(), mesh.triangles.size());
+  summary +=
+      fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",
+                  c.tsdf.voxel_size_m * 100, c.tsdf.truncation_m * 100, mem.blocks,
+                  static_cast<double>(mem.bytes) / (1 << 20), mesh.vertices.size(), mesh.triangles.size());
   summary += "timing, ms per frame    median      p90      max\n";
   for (int s = 0; s < kStageCount; ++s) {
     const auto p = percentiles(stage_ms[s]);
-    summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", s == kQuality ? "quality (keyframes)" : stageName(s),
-                           p.median, p.p90, p.max);
+    summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n",
+                           s == kQuality ? "quality (keyframes)" : stageName(s), p.median, p.p90, p.max);
   }
   const auto pt = percentiles(total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
@@ -458,7 +470,8 @@ int runCommand(const RunOptions& o) {
   summary += dds_text;
 #endif
   if (refine.jobs > 0) {
-    const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms), ps = percentiles(refine.setup_ms);
+    const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms),
+               ps = percentiles(refine.setup_ms);
     const auto pr = percentiles(refine.result_ms);
     const double n = static_cast<double>(refine.jobs);
     summary += fmt::format(
@@ -525,20 +538,26 @@ int synthCommand(const SynthOptions& o) {
     spdlog::error("--scene: '{}' is not one of: room, quality", scene_name);
     return 2;
   }
-  const drv::SyntheticScene scene = scene_name == "quality" ? drv::SyntheticScene::qualityRoom() : drv::SyntheticScene::room();
+  p.scale = o.scale > 0 ? o.scale : sc.scale;
+  if (!(p.scale >= 0.05 && p.scale <= 20)) {
+    spdlog::error("--scale: {} is not within [0.05, 20]", p.scale);
+    return 2;
+  }
+  const drv::SyntheticScene scene =
+      (scene_name == "quality" ? drv::SyntheticScene::qualityRoom() : drv::SyntheticScene::room())
+          .scaled(static_cast<float>(p.scale));
   p.noise = sc.noise && !o.no_noise;
   p.noise_scale = sc.noise_scale;
   p.missing_blobs_per_frame = sc.missing_blobs_per_frame;
   Progress progress("rendering", static_cast<size_t>(p.frames));
-  const auto status = drv::writeSyntheticSequence(o.out_dir, scene, p,
-                                                  makeParallelFor(config->runtime.threads),
+  const auto status = drv::writeSyntheticSequence(o.out_dir, scene, p, makeParallelFor(config->runtime.threads),
                                                   [&](int done, int) { progress.update(static_cast<size_t>(done)); });
   if (!status) {
     spdlog::error("{}", status.message());
     return 1;
   }
-  spdlog::info("wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}) to {}", p.frames,
-               scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", o.out_dir);
+  spdlog::info("wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}, scale {}) to {}", p.frames,
+               scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", p.scale, o.out_dir);
   return 0;
 }
 
@@ -614,8 +633,9 @@ int evalCommand(const EvalOptions& o) {
 
 #ifndef HXMAP_HAVE_DDS
 int echoCommand(const EchoOptions&) {
-  spdlog::error("echo: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
-                "configure and build again)");
+  spdlog::error(
+      "echo: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
+      "configure and build again)");
   return 2;
 }
 #endif
@@ -623,9 +643,19 @@ int echoCommand(const EchoOptions&) {
 drv::RigCalibration rigCalibration(const HxmapConfig& c) {
   const RigConfig& g = c.rig;
   drv::RigCalibration cal;
-  cal.color = {g.color_fx, g.color_fy, g.color_cx, g.color_cy, g.color_width, g.color_height,
+  cal.color = {g.color_fx,
+               g.color_fy,
+               g.color_cx,
+               g.color_cy,
+               g.color_width,
+               g.color_height,
                {g.color_k1, g.color_k2, g.color_p1, g.color_p2, g.color_k3}};
-  cal.depth = {g.depth_fx, g.depth_fy, g.depth_cx, g.depth_cy, g.depth_width, g.depth_height,
+  cal.depth = {g.depth_fx,
+               g.depth_fy,
+               g.depth_cx,
+               g.depth_cy,
+               g.depth_width,
+               g.depth_height,
                {g.depth_k1, g.depth_k2, g.depth_p1, g.depth_p2, g.depth_k3}};
   const Eigen::Quaterniond q(g.depth_to_color_qw, g.depth_to_color_qx, g.depth_to_color_qy, g.depth_to_color_qz);
   cal.T_color_depth.linear() = q.normalized().toRotationMatrix();

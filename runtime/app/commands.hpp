@@ -12,16 +12,16 @@ namespace hxmap::rt {
 
 struct RunOptions {
   std::string dataset;
-  std::string camera;   ///< live camera spec (runtime/camera); instead of dataset, always real time
-  std::string config;   ///< empty = built-in defaults
+  std::string camera;  ///< live camera spec (runtime/camera); instead of dataset, always real time
+  std::string config;  ///< empty = built-in defaults
   std::string out_dir = "hxmap_out";
   int max_frames = -1;  ///< -1 = from config
   bool skip_bad = false;
   bool no_mesh_eval = false;
-  std::string trace;    ///< Chrome trace JSON of per-frame stage timings; empty = none
-  bool realtime = false;  ///< play at the recorded rate through the runtime's threads
-  double fps = 0;         ///< with realtime: playback rate (0 = recorded stamps)
-  double burn_ms = 0;     ///< with realtime: inject CPU-burning refinement slices of this many ms
+  std::string trace;         ///< Chrome trace JSON of per-frame stage timings; empty = none
+  bool realtime = false;     ///< play at the recorded rate through the runtime's threads
+  double fps = 0;            ///< with realtime: playback rate (0 = recorded stamps)
+  double burn_ms = 0;        ///< with realtime: inject CPU-burning refinement slices of this many ms
   std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
   bool dds = false;          ///< publish over DDS (also dds.enabled in the configuration)
 };
@@ -33,6 +33,7 @@ struct SynthOptions {
   int frames = -1, seed = -1;
   std::string trajectory;
   std::string scene;
+  double scale = -1;
   bool no_noise = false;
 };
 int synthCommand(const SynthOptions& options);
@@ -50,12 +51,12 @@ int evalCommand(const EvalOptions& options);
 int configCommand(const std::string& config);
 
 struct EchoOptions {
-  std::string topic;    ///< pose, trajectory, map or health
-  std::string config;   ///< for the dds: section; empty = defaults
-  int count = 0;        ///< stop after this many messages; 0 = until Ctrl-C
-  double timeout_s = 0; ///< fail when count messages have not come by then; 0 = wait forever
-  int domain_id = -1;   ///< -1 = from the configuration
-  std::string prefix;   ///< empty = from the configuration
+  std::string topic;     ///< pose, trajectory, map or health
+  std::string config;    ///< for the dds: section; empty = defaults
+  int count = 0;         ///< stop after this many messages; 0 = until Ctrl-C
+  double timeout_s = 0;  ///< fail when count messages have not come by then; 0 = wait forever
+  int domain_id = -1;    ///< -1 = from the configuration
+  std::string prefix;    ///< empty = from the configuration
 };
 /// Prints what hxmap publishes on a topic, one line per message (needs DDS).
 int echoCommand(const EchoOptions& options);

@@ -1,7 +1,7 @@
 // hxmap: real-time dense RGB-D mapping. See README.md for the commands.
-#include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
+#include <CLI/CLI.hpp>
 
 #include "commands.hpp"
 #include "hxmap/frontend/frontend.hpp"
@@ -19,7 +19,8 @@ int main(int argc, char** argv) {
 
   hxmap::rt::RunOptions run;
   auto* run_cmd = app.add_subcommand(
-      "run", "map a dataset folder (TUM or Replica layout) offline as fast as possible, or in real time; or a live camera");
+      "run",
+      "map a dataset folder (TUM or Replica layout) offline as fast as possible, or in real time; or a live camera");
   auto* dataset_opt = run_cmd->add_option("--dataset", run.dataset, "dataset folder");
   auto* camera_opt = run_cmd->add_option(
       "--camera", run.camera,
@@ -34,8 +35,9 @@ int main(int argc, char** argv) {
                     "play the dataset at its recorded rate through the runtime threads (frames load first)");
   run_cmd->add_option("--fps", run.fps, "with --realtime: playback rate instead of the recorded stamps")
       ->check(CLI::Range(0.1, 1000.0));
-  run_cmd->add_option("--burn-ms", run.burn_ms,
-                      "with --realtime: inject a CPU-burning refinement job with slices of this many ms")
+  run_cmd
+      ->add_option("--burn-ms", run.burn_ms,
+                   "with --realtime: inject a CPU-burning refinement job with slices of this many ms")
       ->check(CLI::Range(0.0, 10000.0));
   run_cmd->add_option("--save-quality", run.save_quality,
                       "folder for quality indicator images per keyframe, ROI boxes (rois.ply) and block scores");
@@ -51,6 +53,9 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
   synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep or inspect");
   synth_cmd->add_option("--scene", synth.scene, "room (default) or quality (known-bad regions for quality validation)");
+  synth_cmd->add_option("--scale", synth.scale,
+                        "scene and trajectory scaled by this (0.5: the quality room's thin structures as thin against "
+                        "1 cm voxels as at full size against 2 cm)");
   synth_cmd->add_flag("--no-noise", synth.no_noise, "exact depth, no sensor model");
 
   std::string demo_out = "hxmap_demo", demo_config;
@@ -78,7 +83,8 @@ int main(int argc, char** argv) {
   echo_cmd->add_option("topic", echo.topic, "pose, trajectory, map or health")->required();
   echo_cmd->add_option("--config", echo.config, "YAML configuration (dds section: domain, topic prefix)");
   echo_cmd->add_option("--count", echo.count, "stop after this many messages (default: until Ctrl-C)");
-  echo_cmd->add_option("--timeout", echo.timeout_s, "fail when --count messages have not come within this many seconds");
+  echo_cmd->add_option("--timeout", echo.timeout_s,
+                       "fail when --count messages have not come within this many seconds");
   echo_cmd->add_option("--domain", echo.domain_id, "DDS domain id (default: from the configuration)");
   echo_cmd->add_option("--prefix", echo.prefix, "topic prefix (default: from the configuration)");
 

@@ -99,7 +99,8 @@ std::unordered_set<uint64_t> wellObserved(const drv::SyntheticScene& scene, cons
         uint64_t last = 0;
         for (const float side : {-0.5f, 0.5f}) {
           const Eigen::Vector3f q = (p + side * voxel_m * n) / block_m;
-          const uint64_t key = pack(alg::BlockKey(alg::floorToInt(q.x()), alg::floorToInt(q.y()), alg::floorToInt(q.z())));
+          const uint64_t key =
+              pack(alg::BlockKey(alg::floorToInt(q.x()), alg::floorToInt(q.y()), alg::floorToInt(q.z())));
           if (side > 0 && key == last) break;
           last = key;
           seen.insert(key);
@@ -162,7 +163,7 @@ std::unordered_set<uint64_t> measuredBad(const alg::TriangleMesh& recon, const a
 }  // namespace
 
 int main(int argc, char** argv) {
-  const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
+  const drv::SyntheticScene scene = test::benchQualityRoom();
   test::BenchSequence seq;
   const std::string trajectory = argc > 3 ? argv[3] : "inspect";
   if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq, trajectory)) return 2;
@@ -171,6 +172,10 @@ int main(int argc, char** argv) {
   const alg::PinholeCamera& cam = seq.camera;
 
   rt::FrontendParams params;
+  if (const char* v = std::getenv("HXMAP_BENCH_VOXELS")) {  // one voxel size, truncation 4 voxels
+    params.tsdf.voxel_size_m = static_cast<float>(std::atof(v));
+    params.tsdf.truncation_m = 4 * params.tsdf.voxel_size_m;
+  }
   rt::Frontend fe(cam, params);
   if (!gt.empty()) fe.setInitialPose(gt.front().T_world_cam);
   std::vector<double> quality_ms;
@@ -188,8 +193,10 @@ int main(int argc, char** argv) {
   for (int k = 0; k < static_cast<int>(scene.primitives().size()); ++k) {
     const auto& p = scene.primitives()[k];
     if (p.bad == drv::Primitive::Bad::kNo) continue;
-    names[k] = p.kind == drv::Primitive::Kind::kCapsule ? "rod" : p.bad == drv::Primitive::Bad::kEdges ? "board edge"
-               : p.noise_scale > 1 ? "noisy patch" : "grazing shelf";
+    names[k] = p.kind == drv::Primitive::Kind::kCapsule ? "rod"
+               : p.bad == drv::Primitive::Bad::kEdges   ? "board edge"
+               : p.noise_scale > 1                      ? "noisy patch"
+                                                        : "grazing shelf";
   }
   struct Tally {
     size_t blocks = 0, chosen = 0;
@@ -216,9 +223,9 @@ int main(int argc, char** argv) {
     const int kind = regionKind(s.key);
     const bool is_chosen = chosen.count(pack(s.key)) > 0;
     if (csv) {
-      std::fprintf(csv, "%d,%d,%d,%s,%.5f,%.5f,%.5f,%.5f,%.4f,%.4f,%.4f,%.4f,%.4f,%d\n", s.key.x(), s.key.y(), s.key.z(),
-                   names[kind].c_str(), s.raw[0], s.raw[1], s.raw[2], s.raw[3], s.normalized[0], s.normalized[1],
-                   s.normalized[2], s.normalized[3], s.priority, is_chosen ? 1 : 0);
+      std::fprintf(csv, "%d,%d,%d,%s,%.5f,%.5f,%.5f,%.5f,%.4f,%.4f,%.4f,%.4f,%.4f,%d\n", s.key.x(), s.key.y(),
+                   s.key.z(), names[kind].c_str(), s.raw[0], s.raw[1], s.raw[2], s.raw[3], s.normalized[0],
+                   s.normalized[1], s.normalized[2], s.normalized[3], s.priority, is_chosen ? 1 : 0);
     }
     Tally& t = by_kind[names[kind]];
     ++t.blocks;
@@ -231,10 +238,11 @@ int main(int argc, char** argv) {
     }
   }
   if (csv) std::fclose(csv);
-  std::printf("quality room: %zu frames, %zu keyframes, %zu blocks scored, %zu known-bad, %zu chosen in %zu ROIs "
-              "(top_fraction %.2f, max_blocks %d)\n",
-              frames.size(), fe.keyframes(), fe.blockScores().size(), bad, chosen.size(), fe.rois().size(),
-              params.quality.top_fraction, params.quality.max_blocks);
+  std::printf(
+      "quality room: %zu frames, %zu keyframes, %zu blocks scored, %zu known-bad, %zu chosen in %zu ROIs "
+      "(top_fraction %.2f, max_blocks %d)\n",
+      frames.size(), fe.keyframes(), fe.blockScores().size(), bad, chosen.size(), fe.rois().size(),
+      params.quality.top_fraction, params.quality.max_blocks);
   std::printf("  precision %.1f%% (chosen volume inside known-bad regions; target >= 80%%)\n",
               chosen.empty() ? 0.0 : 100.0 * static_cast<double>(bad_chosen) / static_cast<double>(chosen.size()));
   std::printf("  recall    %.1f%% (known-bad blocks chosen; target >= 70%%)\n",
@@ -243,8 +251,8 @@ int main(int argc, char** argv) {
               "CGN", "UF", "OBG", "RM", "S", "chosen");
   for (const auto& [name, t] : by_kind) {
     const double n = static_cast<double>(std::max<size_t>(1, t.blocks));
-    std::printf("  %-14s %6zu %6.2f %6.2f %6.2f %6.2f %6.2f %6.0f%%\n", name.c_str(), t.blocks, t.sum[0] / n, t.sum[1] / n,
-                t.sum[2] / n, t.sum[3] / n, t.sum[4] / n, 100.0 * static_cast<double>(t.chosen) / n);
+    std::printf("  %-14s %6zu %6.2f %6.2f %6.2f %6.2f %6.2f %6.0f%%\n", name.c_str(), t.blocks, t.sum[0] / n,
+                t.sum[1] / n, t.sum[2] / n, t.sum[3] / n, t.sum[4] / n, 100.0 * static_cast<double>(t.chosen) / n);
   }
   {
     // Precision and recall of the top blocks by S at other budgets; the
@@ -261,14 +269,17 @@ int main(int argc, char** argv) {
         hit_or_under += kind != -1;
       }
       auto pct = [](size_t a, size_t b) { return b ? 100.0 * static_cast<double>(a) / static_cast<double>(b) : 0.0; };
-      std::printf("  budget %.0f%% of scored blocks: precision %.1f%% recall %.1f%%  (under-observed counted bad: %.1f%% %.1f%%)\n",
-                  100 * budget, pct(hit, k), pct(hit, bad), pct(hit_or_under, k), pct(hit_or_under, bad_or_under));
+      std::printf(
+          "  budget %.0f%% of scored blocks: precision %.1f%% recall %.1f%%  (under-observed counted bad: %.1f%% "
+          "%.1f%%)\n",
+          100 * budget, pct(hit, k), pct(hit, bad), pct(hit_or_under, k), pct(hit_or_under, bad_or_under));
     }
   }
   std::printf("  quality stage per keyframe on this run: median %.2f ms\n", median(quality_ms));
 
   // Cost on the TUM slice, one core, every frame a keyframe.
-  const std::string tum = argc > 2 ? argv[2] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
+  const std::string tum =
+      argc > 2 ? argv[2] : std::string(HXMAP_SHARED_DATA) + "/tum/rgbd_dataset_freiburg1_xyz_first40";
   auto ds = drv::Dataset::open(tum);
   if (!ds) {
     std::fprintf(stderr, "%s\n", ds.message().c_str());
@@ -288,8 +299,9 @@ int main(int argc, char** argv) {
       if (r.keyframe && i > 0) tum_ms.push_back(r.stage_ms[rt::kQuality]);
     }
   }
-  std::printf("TUM slice %dx%d, one core: scoring + ROI extraction per keyframe median %.2f ms (target <= 3), "
-              "%zu keyframes\n",
-              (*ds)->camera().width, (*ds)->camera().height, median(tum_ms), tum_ms.size());
+  std::printf(
+      "TUM slice %dx%d, one core: scoring + ROI extraction per keyframe median %.2f ms (target <= 3), "
+      "%zu keyframes\n",
+      (*ds)->camera().width, (*ds)->camera().height, median(tum_ms), tum_ms.size());
   return 0;
 }

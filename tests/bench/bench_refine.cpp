@@ -21,8 +21,12 @@
 //
 //   bench_refine [quality_sequence_dir|-] [replica_dir|-] [config.yaml]
 // The configuration applies, except voxel size and truncation (4 voxels);
-// HXMAP_BENCH_VOXELS="0.02" limits the voxel sizes. Prints numbers;
-// asserts nothing.
+// HXMAP_BENCH_VOXELS="0.02" limits the voxel sizes; HXMAP_BENCH_SCALE=0.5
+// maps the quality room at half size (a folder written by `hxmap synth
+// --scene quality --scale 0.5 ...`), where 1 cm voxels see its rods and
+// edges as 2 cm voxels see them at full size. Per kind of region, the
+// precision and recall inside the ROIs show where the F1 change comes
+// from. Prints numbers; asserts nothing.
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -82,28 +86,28 @@ Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,
   return s;
 }
 
-// Precision at 1 cm of the reconstruction inside the boxes, per kind of
-// region (the nearest known-bad primitive within 3 voxels, else clean):
-// where refinement helps and where it hurts.
-void precisionByKind(const char* label, const alg::TriangleMesh& recon, const alg::TriangleBvh& gt,
-                     const drv::SyntheticScene& scene, const std::vector<Eigen::AlignedBox3f>& boxes, float voxel) {
-  const alg::TriangleMesh rc = crop(recon, boxes);
-  if (rc.empty()) return;
-  const auto pts = alg::sampleSurface(rc, 100000, 7);
+// The kind of region a point lies in: the nearest known-bad primitive
+// within 3 voxels, else clean.
+std::string regionKind(const drv::SyntheticScene& scene, const Eigen::Vector3f& p, float voxel) {
+  int k = -1;
+  const float d_bad = scene.badDistance(p, &k);
+  if (!(d_bad < 3 * voxel && k >= 0)) return "clean";
+  const auto& prim = scene.primitives()[static_cast<size_t>(k)];
+  return prim.kind == drv::Primitive::Kind::kCapsule ? "rod"
+         : prim.bad == drv::Primitive::Bad::kEdges   ? "board edge"
+         : prim.noise_scale > 1                      ? "noisy patch"
+                                                     : "grazing shelf";
+}
+
+// Per kind of region, the share of `pts` within 1 cm of `to`, the kind's
+// share of the samples and the mean distance: where refinement helps and
+// where it hurts.
+void withinByKind(const char* label, const std::vector<Eigen::Vector3f>& pts, const alg::TriangleBvh& to,
+                  const drv::SyntheticScene& scene, float voxel) {
   std::map<std::string, std::array<double, 3>> by;  // samples, within 1 cm, sum of distances
   for (const auto& p : pts) {
-    int k = -1;
-    const float d_bad = scene.badDistance(p, &k);
-    std::string kind = "clean";
-    if (d_bad < 3 * voxel && k >= 0) {
-      const auto& prim = scene.primitives()[static_cast<size_t>(k)];
-      kind = prim.kind == drv::Primitive::Kind::kCapsule ? "rod"
-             : prim.bad == drv::Primitive::Bad::kEdges   ? "board edge"
-             : prim.noise_scale > 1                      ? "noisy patch"
-                                                         : "grazing shelf";
-    }
-    const float d = gt.distance(p, 0.05f);
-    auto& a = by[kind];
+    const float d = to.distance(p, 0.05f);
+    auto& a = by[regionKind(scene, p, voxel)];
     a[0] += 1;
     a[1] += d <= 0.01f;
     a[2] += std::min(d, 0.05f);
@@ -114,6 +118,31 @@ void precisionByKind(const char* label, const alg::TriangleMesh& recon, const al
                 1000 * a[2] / a[0]);
   }
   std::printf("\n");
+}
+
+// Precision: the reconstruction's samples inside the boxes against the
+// ground truth.
+void precisionByKind(const char* label, const alg::TriangleMesh& recon, const alg::TriangleBvh& gt,
+                     const drv::SyntheticScene& scene, const std::vector<Eigen::AlignedBox3f>& boxes, float voxel) {
+  const alg::TriangleMesh rc = crop(recon, boxes);
+  if (rc.empty()) return;
+  withinByKind(label, alg::sampleSurface(rc, 100000, 7), gt, scene, voxel);
+}
+
+// Recall: the observed ground truth's samples inside the boxes against the
+// reconstruction.
+void recallByKind(const char* label, const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,
+                  const alg::ObservedBy& observed, const drv::SyntheticScene& scene,
+                  const std::vector<Eigen::AlignedBox3f>& boxes, float voxel) {
+  const alg::TriangleMesh gc = crop(gt, boxes);
+  if (gc.empty() || recon.empty()) return;
+  const auto all = alg::sampleSurface(gc, 100000, 11);
+  const auto seen = alg::visibleFromAny(all, gt, observed.camera, observed.poses, observed.max_depth_m);
+  std::vector<Eigen::Vector3f> pts;
+  for (size_t i = 0; i < all.size(); ++i) {
+    if (seen[i]) pts.push_back(all[i]);
+  }
+  withinByKind(label, pts, alg::TriangleBvh(recon), scene, voxel);
 }
 
 // Mean |rendered - input| depth over the keyframes' pixels whose input
@@ -234,7 +263,7 @@ void printJobs(const HybridRun& r) {
 
 int main(int argc, char** argv) {
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // results as they come, also into a file
-  const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
+  const drv::SyntheticScene scene = test::benchQualityRoom();
   test::BenchSequence seq;
   if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq)) return 2;
   const std::vector<RgbdFrame>& frames = seq.frames;
@@ -294,6 +323,9 @@ int main(int argc, char** argv) {
     precisionByKind("TSDF", r.tsdf_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
     precisionByKind("hybrid", r.hybrid_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
     precisionByKind("+detail", r.detail_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
+    std::printf("  recall @1cm inside the ROIs per region kind (share of the observed ground truth there):\n");
+    recallByKind("TSDF", r.tsdf_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
+    recallByKind("hybrid", r.hybrid_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
     std::printf("  detail layer: %zu regions kept at the end\n", r.details);
   }
 

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdio>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
@@ -40,6 +41,18 @@ inline bool loadDatasetSequence(const std::string& dir, BenchSequence& out) {
   return true;
 }
 
+/// HXMAP_BENCH_SCALE: the quality room's scale (SyntheticScene::scaled;
+/// the sequence in a folder must have been written with the same `hxmap
+/// synth --scale`), 1 when unset.
+inline float benchSceneScale() {
+  const char* v = std::getenv("HXMAP_BENCH_SCALE");
+  const float s = v ? static_cast<float>(std::atof(v)) : 1.0f;
+  return s > 0 ? s : 1.0f;
+}
+
+/// The quality room at benchSceneScale().
+inline drv::SyntheticScene benchQualityRoom() { return drv::SyntheticScene::qualityRoom().scaled(benchSceneScale()); }
+
 /// `dir` empty or "-": render. False (the reason on stderr) when the folder
 /// or one of its frames cannot be read.
 inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out,
@@ -47,10 +60,11 @@ inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out,
   drv::SyntheticParams sp;
   sp.frames = 240;
   sp.trajectory = trajectory;
+  sp.scale = benchSceneScale();
   out = BenchSequence{};
   if (!dir.empty() && dir != "-") return loadDatasetSequence(dir, out);
   std::fprintf(stderr, "rendering the quality room (%d frames, %s trajectory) ...\n", sp.frames, trajectory.c_str());
-  const drv::SyntheticScene scene = drv::SyntheticScene::qualityRoom();
+  const drv::SyntheticScene scene = benchQualityRoom();
   out.camera = sp.camera;
   out.ground_truth = drv::syntheticTrajectory(sp);
   for (int i = 0; i < sp.frames; ++i) {

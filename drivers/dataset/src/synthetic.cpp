@@ -38,9 +38,9 @@ SyntheticScene SyntheticScene::room() {
               {90, 60, 40});
     }
   }
-  box({0.1f, 0.3f, 0.84f}, {0.12f, 0.08f, 0.08f}, {60, 120, 200});      // a box on the table
-  box({-1.5f, 1.1f, 0.5f}, {0.35f, 0.3f, 0.5f}, {230, 230, 235});        // cabinet
-  box({1.3f, -0.5f, 0.45f}, {0.18f, 0.18f, 0.02f}, {200, 60, 50});       // stool seat
+  box({0.1f, 0.3f, 0.84f}, {0.12f, 0.08f, 0.08f}, {60, 120, 200});  // a box on the table
+  box({-1.5f, 1.1f, 0.5f}, {0.35f, 0.3f, 0.5f}, {230, 230, 235});   // cabinet
+  box({1.3f, -0.5f, 0.45f}, {0.18f, 0.18f, 0.02f}, {200, 60, 50});  // stool seat
   for (float sx : {-1.0f, 1.0f}) {
     for (float sy : {-1.0f, 1.0f}) {
       capsule({1.3f + sx * 0.15f, -0.5f + sy * 0.15f, 0.0f}, {1.3f + sx * 0.15f, -0.5f + sy * 0.15f, 0.43f}, 0.01f,
@@ -78,6 +78,18 @@ SyntheticScene SyntheticScene::qualityRoom() {
   return s;
 }
 
+SyntheticScene SyntheticScene::scaled(float s) const {
+  SyntheticScene out = *this;
+  for (Primitive& p : out.primitives_) {
+    p.a *= s;
+    p.b *= s;
+    p.radius *= s;
+    p.bad_margin_m *= s;
+  }
+  out.scale_ *= s;
+  return out;
+}
+
 namespace {
 
 float boxSdf(const Vector3f& p, const Vector3f& c, const Vector3f& h) {
@@ -93,10 +105,14 @@ Vector3f closestOnSegment(const Vector3f& p, const Vector3f& a, const Vector3f& 
 
 float primitiveSdf(const Primitive& pr, const Vector3f& p) {
   switch (pr.kind) {
-    case Kind::kBox: return boxSdf(p, pr.a, pr.b);
-    case Kind::kRoom: return -boxSdf(p, pr.a, pr.b);
-    case Kind::kSphere: return (p - pr.a).norm() - pr.radius;
-    case Kind::kCapsule: return (p - closestOnSegment(p, pr.a, pr.b)).norm() - pr.radius;
+    case Kind::kBox:
+      return boxSdf(p, pr.a, pr.b);
+    case Kind::kRoom:
+      return -boxSdf(p, pr.a, pr.b);
+    case Kind::kSphere:
+      return (p - pr.a).norm() - pr.radius;
+    case Kind::kCapsule:
+      return (p - closestOnSegment(p, pr.a, pr.b)).norm() - pr.radius;
   }
   return 1e9f;
 }
@@ -223,10 +239,18 @@ bool SyntheticScene::raycast(const Vector3f& o, const Vector3f& d, float& t_hit,
     const auto& pr = primitives_[k];
     float t = -1;
     switch (pr.kind) {
-      case Kind::kBox: t = rayBox(o, d, pr.a, pr.b, false); break;
-      case Kind::kRoom: t = rayBox(o, d, pr.a, pr.b, true); break;
-      case Kind::kSphere: t = raySphere(o, d, pr.a, pr.radius); break;
-      case Kind::kCapsule: t = rayCapsule(o, d, pr.a, pr.b, pr.radius); break;
+      case Kind::kBox:
+        t = rayBox(o, d, pr.a, pr.b, false);
+        break;
+      case Kind::kRoom:
+        t = rayBox(o, d, pr.a, pr.b, true);
+        break;
+      case Kind::kSphere:
+        t = raySphere(o, d, pr.a, pr.radius);
+        break;
+      case Kind::kCapsule:
+        t = rayCapsule(o, d, pr.a, pr.b, pr.radius);
+        break;
     }
     if (t > 0 && (best < 0 || t < best)) {
       best = t;
@@ -237,18 +261,27 @@ bool SyntheticScene::raycast(const Vector3f& o, const Vector3f& d, float& t_hit,
   const auto& pr = primitives_[best_k];
   const Vector3f p = o + best * d;
   switch (pr.kind) {
-    case Kind::kBox: normal = boxNormal(p, pr.a, pr.b); break;
-    case Kind::kRoom: normal = -boxNormal(p, pr.a, pr.b); break;
-    case Kind::kSphere: normal = (p - pr.a).normalized(); break;
-    case Kind::kCapsule: normal = (p - closestOnSegment(p, pr.a, pr.b)).normalized(); break;
+    case Kind::kBox:
+      normal = boxNormal(p, pr.a, pr.b);
+      break;
+    case Kind::kRoom:
+      normal = -boxNormal(p, pr.a, pr.b);
+      break;
+    case Kind::kSphere:
+      normal = (p - pr.a).normalized();
+      break;
+    case Kind::kCapsule:
+      normal = (p - closestOnSegment(p, pr.a, pr.b)).normalized();
+      break;
   }
   t_hit = best;
   primitive = best_k;
   return true;
 }
 
-alg::Color3 SyntheticScene::color(const Vector3f& p, const Vector3f& n, int primitive) const {
+alg::Color3 SyntheticScene::color(const Vector3f& p_world, const Vector3f& n, int primitive) const {
   const Primitive& pr = primitives_[primitive];
+  const Vector3f p = p_world / scale_;
   Eigen::Vector3f albedo = pr.color.cast<float>() / 255.0f;
   const float grain = valueNoise(p * 12.0f, 7u + static_cast<uint32_t>(primitive));
   const float fine = valueNoise(p * 60.0f, 13u);
@@ -346,8 +379,12 @@ alg::TriangleMesh SyntheticScene::mesh() const {
     const auto& pr = primitives_[k];
     alg::TriangleMesh m;
     switch (pr.kind) {
-      case Kind::kBox: addBoxMesh(m, pr.a, pr.b, false); break;
-      case Kind::kRoom: addBoxMesh(m, pr.a, pr.b, true); break;
+      case Kind::kBox:
+        addBoxMesh(m, pr.a, pr.b, false);
+        break;
+      case Kind::kRoom:
+        addBoxMesh(m, pr.a, pr.b, true);
+        break;
       case Kind::kSphere: {
         const int n = segmentsFor(pr.radius);
         addSphereMesh(m, pr.a, pr.radius, Vector3f::UnitZ(), Vector3f::UnitX(), Vector3f::UnitY(),
@@ -412,6 +449,8 @@ Trajectory syntheticTrajectory(const SyntheticParams& params) {
       eye = {0.3 + 1.35 * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.12 * std::sin(1.1 * t)};
       target = {0.2 + 0.15 * std::sin(0.8 * t), 0.25 + 0.1 * std::cos(0.6 * t), 0.65};
     }
+    eye *= params.scale;
+    target *= params.scale;
     const Eigen::Vector3d forward = (target - eye).normalized();
     const Eigen::Vector3d right = forward.cross(Eigen::Vector3d::UnitZ()).normalized();
     const Eigen::Vector3d down = forward.cross(right);
@@ -479,7 +518,8 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
         const float zn = out.depth_true.at<float>(vv, uu);
         if (zn <= 0 || std::abs(zn - z) > params.edge_jump_ratio * z) invalid = true;
       }
-      const float sigma = static_cast<float>(params.noise_scale) * noise_gain.at<float>(v, u) * (0.0012f + 0.0019f * (z - 0.4f) * (z - 0.4f));
+      const float sigma = static_cast<float>(params.noise_scale) * noise_gain.at<float>(v, u) *
+                          (0.0012f + 0.0019f * (z - 0.4f) * (z - 0.4f));
       const float noisy = z + sigma * gauss(rng);
       // Disparity quantized to 1/8 pixel, as a Kinect v1.
       const float disparity = std::round(baseline_fx / std::max(noisy, 0.05f) * 8.0f) / 8.0f;
@@ -530,11 +570,15 @@ Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scen
   }
   const auto& c = params.camera;
   const std::string calib = fmt::format(
-      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: {}\n"
+      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {}, scale {})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: "
+      "{}\n"
       "height: {}\ndepth_scale: 5000\n",
-      params.seed, params.trajectory, params.noise ? "on" : "off", c.fx, c.fy, c.cx, c.cy, c.width, c.height);
-  for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list}, {"depth.txt", depth_list},
-                                   {"groundtruth.txt", formatTumTrajectory(traj)}, {"calibration.yaml", calib}}) {
+      params.seed, params.trajectory, params.noise ? "on" : "off", params.scale, c.fx, c.fy, c.cx, c.cy, c.width,
+      c.height);
+  for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list},
+                                   {"depth.txt", depth_list},
+                                   {"groundtruth.txt", formatTumTrajectory(traj)},
+                                   {"calibration.yaml", calib}}) {
     if (auto s = writeTextFile((fs::path(dir) / name).string(), text); !s) return s;
   }
   return writePly((fs::path(dir) / "gt_mesh.ply").string(), scene.mesh());

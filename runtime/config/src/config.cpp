@@ -225,6 +225,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);
   v.choice("scene", c.synthetic.scene, {"room", "quality"});
   v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect"});
+  v.number("scale", c.synthetic.scale, 0.05, 20);
   v.boolean("noise", c.synthetic.noise);
   v.number("noise_scale", c.synthetic.noise_scale, 0, 100);
   v.integer("missing_blobs_per_frame", c.synthetic.missing_blobs_per_frame, 0, 100);

@@ -39,6 +39,42 @@ TEST(Synthetic, ExactDepthLiesOnTheAnalyticSurface) {
   }
 }
 
+TEST(Synthetic, AScaledSceneSeenFromAScaledTrajectoryIsTheSameImageAtScaledDepth) {
+  const SyntheticScene full = SyntheticScene::qualityRoom(), half = full.scaled(0.5f);
+  SyntheticParams p;
+  p.noise = false;
+  p.frames = 90;
+  p.trajectory = "inspect";
+  const Trajectory a = syntheticTrajectory(p);
+  p.scale = 0.5;
+  const Trajectory b = syntheticTrajectory(p);
+  EXPECT_NEAR(half.sdf(Eigen::Vector3f(0.3f, 0.2f, 0.4f)), 0.5f * full.sdf(Eigen::Vector3f(0.6f, 0.4f, 0.8f)), 1e-6f);
+  for (int i : {0, 60}) {  // frame 60: the top of the rise
+    EXPECT_NEAR((b[i].T_world_cam.translation() - 0.5 * a[i].T_world_cam.translation()).norm(), 0.0, 1e-9);
+    EXPECT_TRUE(b[i].T_world_cam.linear().isApprox(a[i].T_world_cam.linear(), 1e-9));
+    const RenderedFrame fa = renderFrame(full, kCam, a[i].T_world_cam, p, i);
+    const RenderedFrame fb = renderFrame(half, kCam, b[i].T_world_cam, p, i);
+    int both = 0, one = 0, color_off = 0;
+    double worst = 0;
+    for (int v = 0; v < kCam.height; ++v) {
+      for (int u = 0; u < kCam.width; ++u) {
+        const float za = fa.depth.at<float>(v, u), zb = fb.depth.at<float>(v, u);
+        if ((za > 0) != (zb > 0)) ++one;
+        if (!(za > 0 && zb > 0)) continue;
+        ++both;
+        worst = std::max(worst, static_cast<double>(std::abs(zb - 0.5f * za)));
+        const cv::Vec3b ca = fa.rgb.at<cv::Vec3b>(v, u), cb = fb.rgb.at<cv::Vec3b>(v, u);
+        color_off += cv::norm(ca, cb, cv::NORM_INF) > 2;
+      }
+    }
+    EXPECT_GT(both, kCam.width * kCam.height / 2) << "frame " << i;
+    // Float ray casting: a few pixels on silhouettes may differ.
+    EXPECT_LT(one, kCam.width * kCam.height / 500) << "frame " << i << ": pixels with depth in one image only";
+    EXPECT_LT(color_off, both / 500) << "frame " << i << ": pixels whose color differs by more than 2";
+    EXPECT_LT(worst, 2e-4) << "frame " << i << ": |z_half - z_full / 2| (m)";
+  }
+}
+
 TEST(Synthetic, GroundTruthMeshMatchesTheSdf) {
   const SyntheticScene scene = SyntheticScene::room();
   const alg::TriangleMesh mesh = scene.mesh();

@@ -31,12 +31,15 @@ struct SyntheticParams {
   /// the back wall and back, rising once to glance over a shelf; made for
   /// SyntheticScene::qualityRoom).
   std::string trajectory = "orbit";
-  bool noise = true;                 ///< apply the sensor model (false: exact depth)
-  double noise_scale = 1.0;          ///< multiplies the depth noise sigma
-  int missing_blobs_per_frame = 0;   ///< elliptic holes in depth
+  /// Camera positions (and look-at targets) scaled about the origin, for a
+  /// scene scaled the same way (SyntheticScene::scaled).
+  double scale = 1.0;
+  bool noise = true;                ///< apply the sensor model (false: exact depth)
+  double noise_scale = 1.0;         ///< multiplies the depth noise sigma
+  int missing_blobs_per_frame = 0;  ///< elliptic holes in depth
   double min_depth_m = 0.3, max_depth_m = 6.0;
-  double grazing_cos = 0.1;          ///< invalid when |cos(incidence)| is below
-  double edge_jump_ratio = 0.04;     ///< invalid next to depth jumps larger than this * z
+  double grazing_cos = 0.1;       ///< invalid when |cos(incidence)| is below
+  double edge_jump_ratio = 0.04;  ///< invalid next to depth jumps larger than this * z
   alg::PinholeCamera camera{525.0, 525.0, 319.5, 239.5, 640, 480, {0, 0, 0, 0, 0}};
 };
 
@@ -46,7 +49,7 @@ struct Primitive {
   Eigen::Vector3f b = Eigen::Vector3f::Zero();  ///< box/room half extents, capsule other end
   float radius = 0.0f;
   alg::Color3 color{200, 200, 200};
-  int texture = 0;  ///< 0 plain with grain, 1 checker walls, 2 floor planks
+  int texture = 0;           ///< 0 plain with grain, 1 checker walls, 2 floor planks
   float noise_scale = 1.0f;  ///< multiplies the depth noise on this primitive
   /// Known-bad for the explicit map by construction (quality validation):
   /// the whole primitive, or (boxes) only the edges off the floor.
@@ -66,6 +69,12 @@ class SyntheticScene {
   /// its depth lands in), and a shelf whose top is only seen at a grazing
   /// angle during one rise of the "inspect" trajectory.
   static SyntheticScene qualityRoom();
+  /// This scene scaled by `s` about the world origin: every length, and the
+  /// texture patterns with it (0.5 and 1 cm voxels see the quality room's
+  /// structures as thin as 2 cm voxels see them at full size; pair with
+  /// SyntheticParams::scale). The sensor model is not scaled: depth noise
+  /// follows the real distances.
+  SyntheticScene scaled(float s) const;
   /// Distance to the nearest known-bad region (Primitive::bad), or +inf;
   /// `primitive` (optional) receives that region's primitive index.
   float badDistance(const Eigen::Vector3f& p_world, int* primitive = nullptr) const;
@@ -85,6 +94,7 @@ class SyntheticScene {
 
  private:
   std::vector<Primitive> primitives_;
+  float scale_ = 1.0f;  ///< texture coordinates are divided by this
 };
 
 /// Smooth camera trajectory (camera-to-world, stamps from fps).

@@ -41,6 +41,7 @@ struct SyntheticConfig {
   int seed = 1;
   std::string scene = "room";         ///< room | quality
   std::string trajectory = "orbit";  ///< orbit | sweep | inspect
+  double scale = 1.0;                ///< scene and trajectory scaled about the origin
   bool noise = true;
   double noise_scale = 1.0;
   int missing_blobs_per_frame = 0;
