@@ -16,7 +16,9 @@
 //    reconstruction (no border effects from cropping).
 // 2. Depth L1 of the map's renderings against the keyframes' input depth,
 //    inside each job's ROI, just before and just after its write-back, on
-//    the quality room and on the shared Replica slice.
+//    the quality room and on the shared Replica slice: over the pixels the
+//    map renders both times, and apart, the pixels the write-back made
+//    render (completion of surfaces fusion never observed).
 // 3. Time per ROI job and per iteration, memory per ROI.
 //
 //   bench_refine [quality_sequence_dir|-] [replica_dir|-] [config.yaml]
@@ -30,8 +32,10 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
@@ -145,14 +149,11 @@ void recallByKind(const char* label, const alg::TriangleMesh& recon, const alg::
   withinByKind(label, pts, alg::TriangleBvh(recon), scene, voxel);
 }
 
-// Mean |rendered - input| depth over the keyframes' pixels whose input
-// surface lies in the box, and the share of those the map renders no
-// surface for.
-struct DepthL1 {
-  std::vector<double> error_m;
-  size_t missing = 0;
-};
-void roiDepthL1(const alg::TsdfMap& map, const rt::RefineJob& job, DepthL1& acc) {
+// |rendered - input| depth over the keyframes' pixels whose input surface
+// lies in the job's box (NaN where the map renders no surface), in a fixed
+// pixel order so that a job's before and after line up.
+std::vector<float> roiDepthErrors(const alg::TsdfMap& map, const rt::RefineJob& job) {
+  std::vector<float> out;
   for (const auto& kf : job.keyframes) {
     const alg::ModelView mv = alg::raycast(map, kf.camera, kf.T_world_cam, alg::RaycastParams{});
     for (int v = 0; v < kf.depth.rows; ++v) {
@@ -163,22 +164,40 @@ void roiDepthL1(const alg::TsdfMap& map, const rt::RefineJob& job, DepthL1& acc)
             kf.T_world_cam * kf.camera.backproject(static_cast<float>(u), static_cast<float>(v), z);
         if (!job.roi.box_world.contains(p)) continue;
         const float zr = mv.depth.at<float>(v, u);
-        if (!(zr > 0)) {
-          ++acc.missing;
-          continue;
-        }
-        acc.error_m.push_back(std::abs(zr - z));
+        out.push_back(zr > 0 ? std::abs(zr - z) : std::numeric_limits<float>::quiet_NaN());
       }
     }
   }
+  return out;
 }
+
+// Before vs after over the pixels rendered both times, and the pixels a
+// write-back made render (completion) or stop rendering.
+struct DepthL1 {
+  std::vector<double> before_m, after_m, filled_m;
+  size_t pixels = 0, missing_before = 0, missing_after = 0;
+  void add(const std::vector<float>& b, const std::vector<float>& a) {
+    for (size_t i = 0; i < b.size() && i < a.size(); ++i) {
+      ++pixels;
+      const bool hb = std::isfinite(b[i]), ha = std::isfinite(a[i]);
+      missing_before += !hb;
+      missing_after += !ha;
+      if (hb && ha) {
+        before_m.push_back(b[i]);
+        after_m.push_back(a[i]);
+      } else if (ha) {
+        filled_m.push_back(a[i]);
+      }
+    }
+  }
+};
 
 struct HybridRun {
   alg::TriangleMesh tsdf_mesh, hybrid_mesh, detail_mesh;
   size_t details = 0;
   std::vector<Eigen::AlignedBox3f> boxes;
   std::vector<double> job_ms, iteration_ms, setup_ms, memory_mb, iterations, rays, free_rays;
-  DepthL1 before, after;
+  DepthL1 depth;
   size_t jobs = 0, converged = 0, out_of_time = 0;
   double tsdf_s = 0, hybrid_s = 0;
   Trajectory poses;
@@ -206,10 +225,10 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
   for (const auto& f : frames) {
     fe.process(f);
     for (const rt::RefineJob& job : fe.takeRefineJobs()) {
-      roiDepthL1(fe.map(), job, out.before);
+      const std::vector<float> before = roiDepthErrors(fe.map(), job);
       const rt::RefineOutcome o = rt::runRefineJob(job, params.implicit);
       fe.applyRefinement(o);
-      roiDepthL1(fe.map(), job, out.after);
+      out.depth.add(before, roiDepthErrors(fe.map(), job));
       const auto& st = o.result.stats;
       ++out.jobs;
       out.converged += st.converged;
@@ -235,15 +254,14 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
 }
 
 void printJobs(const HybridRun& r) {
-  auto l1 = [](const DepthL1& d) {
+  auto mean = [](const std::vector<double>& v) {
     double sum = 0;
-    for (double e : d.error_m) sum += e;
-    return d.error_m.empty() ? 0.0 : 1000.0 * sum / static_cast<double>(d.error_m.size());
+    for (double e : v) sum += e;
+    return v.empty() ? 0.0 : 1000.0 * sum / static_cast<double>(v.size());
   };
-  auto med = [](const DepthL1& d) { return 1000.0 * median(d.error_m); };
-  auto miss = [](const DepthL1& d) {
-    const size_t n = d.error_m.size() + d.missing;
-    return n ? 100.0 * static_cast<double>(d.missing) / static_cast<double>(n) : 0.0;
+  const DepthL1& d = r.depth;
+  auto share = [&](size_t n) {
+    return d.pixels ? 100.0 * static_cast<double>(n) / static_cast<double>(d.pixels) : 0.0;
   };
   std::printf(
       "  jobs: %zu (%zu converged early, %zu stopped by the time budget); per job median %.0f ms (setup %.1f ms), "
@@ -254,9 +272,11 @@ void printJobs(const HybridRun& r) {
   std::printf("  rays per job median: %.0f landing in the ROI, %.0f crossing it to a surface beyond\n", median(r.rays),
               median(r.free_rays));
   std::printf(
-      "  map rendering vs input depth inside each job's ROI, before -> after its write-back: median %.2f -> %.2f mm, "
-      "mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels\n",
-      med(r.before), med(r.after), l1(r.before), l1(r.after), miss(r.before), miss(r.after));
+      "  map rendering vs input depth inside each job's ROI, before -> after its write-back, where both render: "
+      "median %.2f -> %.2f mm, mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels; "
+      "the pixels it made render: median %.2f mm, mean %.2f mm\n",
+      1000 * median(d.before_m), 1000 * median(d.after_m), mean(d.before_m), mean(d.after_m), share(d.missing_before),
+      share(d.missing_after), 1000 * median(d.filled_m), mean(d.filled_m));
 }
 
 }  // namespace

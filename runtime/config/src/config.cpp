@@ -186,6 +186,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("patience", m.patience, 1, 1 << 16);
   v.number("writeback_weight_ratio", m.writeback_weight_ratio, 0, kBig);
   v.integer("bias_rays", m.bias_rays, 1, 1 << 20);
+  v.boolean("completion", m.completion);
   v.number("border_blend_voxels", m.border_blend_voxels, 0, 64);
   v.number("detail_min_share", m.detail_min_share, 0, 1);
 

@@ -377,6 +377,16 @@ void Frontend::keepKeyframeImages(uint32_t id) {
   // DESIGN: refinement trains on the measurements fusion averaged, not on
   // the denoised pyramid (see averageDepth2x2).
   k.depth = level == 1 ? alg::averageDepth2x2(last_frame_.depth_m) : l.depth.clone();
+  // Nor on depth fusion never takes: beyond max_integration_depth_m (or
+  // outside the preprocessing range) the field would fit surfaces the map
+  // deliberately leaves out, and with completion write them back (on the
+  // Replica slice, 10-13 % of the pixels lie beyond 4 m, and there the ROIs
+  // rendered no surface for 83 % of their pixels).
+  const float lo = static_cast<float>(params_.preprocess.min_depth_m);
+  const float hi = static_cast<float>(std::min(params_.preprocess.max_depth_m, params_.tsdf.max_integration_depth_m));
+  k.depth.forEach<float>([&](float& z, const int*) {
+    if (!(z >= lo && z <= hi)) z = 0.0f;
+  });
   if (!l.normal.empty()) k.normal = l.normal.clone();
   if (last_frame_.has_color && !last_frame_.rgb.empty()) {
     cv::resize(last_frame_.rgb, k.rgb, l.depth.size(), 0, 0, cv::INTER_AREA);

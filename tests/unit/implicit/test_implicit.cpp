@@ -432,6 +432,51 @@ TEST_F(PlaneScene, WriteBackOfAnUntrainedFieldKeepsTheMap) {
   }
 }
 
+TEST_F(PlaneScene, APatchFusionNeverObservedIsCompletedFromTheKeyframes) {
+  // The map is fused from the true plane, except a 6 x 6 cm patch whose
+  // depth fusion never received (in the quality room, a shelf's top seen
+  // only past the incidence fusion accepts). The keyframes see all of it.
+  TsdfMap holed{tsdfParams()};
+  for (int rep = 0; rep < 4; ++rep) {
+    for (const auto& T : viewPoses()) {
+      KeyframeImages k = planeView(0, T, kTrueZ);
+      for (int v = 0; v < kCam.height; ++v) {
+        for (int u = 0; u < kCam.width; ++u) {
+          float& z = k.depth.at<float>(v, u);
+          if (!(z > 0)) continue;
+          const Eigen::Vector3f p = T * kCam.backproject(static_cast<float>(u), static_cast<float>(v), z);
+          if (std::abs(p.x() - 0.08f) < 0.03f && std::abs(p.y() - 0.08f) < 0.03f) z = 0;
+        }
+      }
+      fuse(holed, k);
+    }
+  }
+  ASSERT_TRUE(std::isnan(surfaceZ(holed, 0.08f, 0.08f))) << "the patch should be empty";
+  ASSERT_NEAR(surfaceZ(holed, 0.14f, 0.14f), kTrueZ, 0.003f);
+  ImplicitParams p = smallParams();
+  p.iterations = 120;
+  p.convergence_rel = 0;
+  RoiRefiner refiner(holed, box_, keyframes_, p);
+  while (refiner.iterate(10)) {
+  }
+  const RefineResult r = refiner.result();
+  EXPECT_GT(r.stats.completed, 8u);  // 3 x 3 columns of voxels, two or more deep
+  for (const auto& e : r.patch.entries) {
+    Voxel v;
+    if (holed.voxel(e.voxel, v) && v.weight > 0) continue;
+    // One observation's worth (less in the border ramp), within the band.
+    EXPECT_LE(e.weight, RoiRefiner::kCompletionWeight) << e.voxel.transpose();
+    EXPECT_LT(std::abs(e.sdf_m), holed.truncation()) << e.voxel.transpose();
+  }
+  TsdfMap completed = holed;
+  applyPatch(completed, r.patch);
+  for (const float x : {0.07f, 0.08f, 0.09f}) {
+    EXPECT_NEAR(surfaceZ(completed, x, 0.08f), kTrueZ, 0.004f) << "x " << x;
+  }
+  // The fused surface around the patch stays where it was.
+  EXPECT_NEAR(surfaceZ(completed, 0.14f, 0.14f), surfaceZ(holed, 0.14f, 0.14f), 0.002f);
+}
+
 TEST(ShadowScene, RaysThatSawThroughAShadowClearItAndFusionKeepsItClear) {
   // The map holds a wall at z = 0.8 m and, inside the box, a 4 cm slab of
   // surface nothing observed: what fusion leaves behind a thin part, up to

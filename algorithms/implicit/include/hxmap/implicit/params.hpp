@@ -56,6 +56,9 @@ struct ImplicitParams {
   /// refined value); less where the TSDF's error is noise, not bias.
   double writeback_weight_ratio = 4.0;
   int bias_rays = 2048;  ///< rays rendered from the TSDF to tell its bias from noise
+  /// Completion: voxels fusion never observed take the field's value where
+  /// the keyframes' rays render better from the field (RoiRefiner::completes).
+  bool completion = true;
   /// The weight falls linearly to 0 over this many voxels at the ROI border
   /// (no seam with the unrefined map around it).
   double border_blend_voxels = 2.0;

@@ -36,6 +36,7 @@ struct RefineStats {
   double depth_l1_before_m = 0, depth_l1_after_m = 0;
   size_t patch_entries = 0;
   size_t detail_nodes = 0;  ///< fine nodes of the detail layer
+  size_t completed = 0;     ///< voxels fusion never observed, written back from the field
 };
 
 struct RefineResult {
@@ -51,6 +52,9 @@ struct RefineResult {
 
 class RoiRefiner {
  public:
+  /// Fused weight of a voxel fusion never observed, written back from the
+  /// field (completion): one good observation's worth.
+  static constexpr float kCompletionWeight = 1.0f;
   /// `map`: the map or a snapshot holding the ROI's blocks; `box_world`:
   /// the ROI box (Roi::box_world); `keyframes`: those that observe it.
   RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world, const std::vector<KeyframeImages>& keyframes,
@@ -100,6 +104,8 @@ class RoiRefiner {
   size_t prep_next_ = 0;
   bool prepared_ = false, measured_before_ = false;
   float writebackRatio(int x, int y, int z) const;
+  /// Whether a voxel fusion never observed takes the field's value.
+  bool completes(int x, int y, int z) const;
   /// The detail layer, from the field's share of each voxel (0 where not
   /// written back).
   std::shared_ptr<const RefinedDetail> makeDetail(const std::vector<float>& share) const;
