@@ -239,7 +239,8 @@ void gatherReference(const FrameLevel& ref, const cv::Mat& ref_conf, int conf_sh
   const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
   const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
   const int conf_cols = ref_conf.cols;
-  const float gmin_ref = static_cast<float>(params.photometric_reference_gradient_ratio * params.photometric_min_gradient);
+  const float gmin_ref =
+      static_cast<float>(params.photometric_reference_gradient_ratio * params.photometric_min_gradient);
   const float gmin2_ref = gmin_ref * gmin_ref;
   for (int v = v_begin; v < v_end; v += stride) {
     const float* drow = ref.depth.ptr<float>(v);
@@ -317,8 +318,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   result.model_pixels = model[finest].valid_pixels;
   const int iterations[3] = {params.iterations_finest, params.iterations_middle, params.iterations_coarsest};
   Eigen::Isometry3d T = T_init;
-  const bool use_photometric = reference.frame != nullptr && params.photometric_scale_m > 0 &&
-                               frame.has_color && reference.frame->has_color;
+  const bool use_photometric =
+      reference.frame != nullptr && params.photometric_scale_m > 0 && frame.has_color && reference.frame->has_color;
   Accumulation last;  // the finest level's last point-to-plane evaluation
   bool have_last = false;
   for (int l = levels - 1; l >= finest; --l) {
@@ -328,7 +329,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     // At the finest level, intensity at full resolution where the frames
     // have it (finer texture than the geometry's level).
     const int pl = l == finest && !frame.levels[0].intensity.empty() && use_photometric &&
-                           !reference.frame->levels[0].intensity.empty() ? 0 : l;
+                           !reference.frame->levels[0].intensity.empty()
+                       ? 0
+                       : l;
     const bool photometric = use_photometric && static_cast<size_t>(l) < reference.frame->levels.size();
     const FrameBands frame_points = gatherFrameBands(frame.levels[l], stride, parallel);
     std::array<std::vector<RefPoint>, kChunks> ref_points;
@@ -360,7 +363,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       const Vector6d xi = -ldlt.solve(acc.eq.b());
       if (!xi.allFinite()) break;
       T = expSE3(xi) * T;
-      if (xi.head<3>().norm() < params.convergence_rotation_rad && xi.tail<3>().norm() < params.convergence_translation_m) {
+      if (xi.head<3>().norm() < params.convergence_rotation_rad &&
+          xi.tail<3>().norm() < params.convergence_translation_m) {
         break;
       }
     }
@@ -387,8 +391,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
   const Eigen::Isometry3d motion = T_init.inverse() * T;
   if (last.inliers < params.min_inliers ||
-      last.inliers < params.min_inlier_ratio *
-                         std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)))) {
+      last.inliers <
+          params.min_inlier_ratio * std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)))) {
     result.failure = "too few inliers (" + std::to_string(last.inliers) + ")";
   } else if (result.rms_residual_m > params.max_rms_residual_m) {
     result.failure = "residual too large (" + std::to_string(result.rms_residual_m * 1000) + " mm rms)";
@@ -412,11 +416,29 @@ int modelLevel(const TrackingParams& params, int width) {
 }
 
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
-                   int64_t now_ns, const TrackingParams& params) {
+                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m) {
   const Eigen::Isometry3d rel = T_last_kf.inverse() * T_now;
-  return translationNorm(rel) > params.keyframe_translation_m ||
-         rotationAngle(rel) * 180.0 / M_PI > params.keyframe_rotation_deg ||
+  double max_translation = params.keyframe_translation_m;
+  if (params.keyframe_baseline_ratio > 0 && last_kf_depth_m > 0) {
+    max_translation = std::min(max_translation, params.keyframe_baseline_ratio * last_kf_depth_m);
+  }
+  return translationNorm(rel) > max_translation || rotationAngle(rel) * 180.0 / M_PI > params.keyframe_rotation_deg ||
          static_cast<double>(now_ns - last_kf_ns) * 1e-9 > params.keyframe_interval_s;
+}
+
+float medianDepth(const cv::Mat& depth_m) {
+  std::vector<float> z;
+  z.reserve(depth_m.total());
+  for (int v = 0; v < depth_m.rows; ++v) {
+    const float* row = depth_m.ptr<float>(v);
+    for (int u = 0; u < depth_m.cols; ++u) {
+      if (row[u] > 0 && std::isfinite(row[u])) z.push_back(row[u]);
+    }
+  }
+  if (z.empty()) return 0.0f;
+  auto mid = z.begin() + static_cast<std::ptrdiff_t>(z.size() / 2);
+  std::nth_element(z.begin(), mid, z.end());
+  return *mid;
 }
 
 }  // namespace hxmap::alg

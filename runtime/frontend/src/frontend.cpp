@@ -125,13 +125,15 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   }
 
   // 5. Keyframes by motion and time.
-  if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking)) {
+  if (!initialized_ ||
+      alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking, last_kf_depth_m_)) {
     r.keyframe = true;
     r.keyframe_id = static_cast<uint32_t>(keyframes_);
     if (params_.feedback.enabled)
       keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
     T_last_kf_ = T;
     last_kf_ns_ = frame.stamp_ns;
+    if (!last_frame_.levels.empty()) last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
     ++keyframes_;
     if (params_.quality_enabled) {
       StageTimer t(r.stage_ms[kQuality]);

@@ -1,3 +1,5 @@
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include "hxmap/tracking/icp.hpp"
@@ -26,7 +28,8 @@ class IcpTest : public ::testing::Test {
     for (int i = first; i <= last; i += 2) {
       const auto f = test::syntheticFrame(scene_, cam_, traj_[i].T_world_cam);
       const auto pre = preprocessFrame(f, cam_, pp_);
-      integrate(map, {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
+      integrate(map,
+                {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
     }
     return map;
   }
@@ -98,6 +101,26 @@ TEST(Keyframes, MotionAndTime) {
   EXPECT_TRUE(isNewKeyframe(I, moved, 0, 1, p));
   EXPECT_FALSE(isNewKeyframe(I, I, 0, 100'000'000, p));
   EXPECT_TRUE(isNewKeyframe(I, I, 0, 2'000'000'000, p));
+  // Parallax: 6 cm is a keyframe 1 m from the scene (ratio 0.04), not 2.5 m.
+  EXPECT_EQ(p.keyframe_baseline_ratio, 0.0);  // off by default
+  p.keyframe_baseline_ratio = 0.04;
+  moved.translation().x() = 0.06;
+  EXPECT_TRUE(isNewKeyframe(I, moved, 0, 1, p, 1.0));
+  EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p, 2.5));
+  EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p));  // depth unknown: 10 cm
+  p.keyframe_baseline_ratio = 0;
+  EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p, 1.0));
+}
+
+TEST(Keyframes, MedianDepthSkipsInvalidPixels) {
+  cv::Mat d(2, 4, CV_32F, cv::Scalar(0.0f));
+  d.at<float>(0, 0) = 1.0f;
+  d.at<float>(0, 1) = std::numeric_limits<float>::quiet_NaN();
+  d.at<float>(1, 0) = 3.0f;
+  d.at<float>(1, 1) = 2.0f;
+  d.at<float>(1, 2) = std::numeric_limits<float>::infinity();
+  EXPECT_FLOAT_EQ(medianDepth(d), 2.0f);
+  EXPECT_EQ(medianDepth(cv::Mat(3, 3, CV_32F, cv::Scalar(0.0f))), 0.0f);
 }
 
 }  // namespace

@@ -48,15 +48,19 @@ struct PhotometricReference {
 /// fixed order, so the result is the same for any `parallel`.
 IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<ModelView>& model,
                             const Eigen::Isometry3d& T_init, const TrackingParams& params,
-                            const PhotometricReference& reference = {},
-                            const ParallelFor& parallel = serialFor);
+                            const PhotometricReference& reference = {}, const ParallelFor& parallel = serialFor);
 
 /// The pyramid level the model is raycast at for an image `width` pixels
 /// wide (params.model_level, or the automatic choice when it is negative).
 int modelLevel(const TrackingParams& params, int width);
 
-/// Keyframe test: motion or time since the last keyframe above thresholds.
+/// Keyframe test: motion or time since the last keyframe above thresholds;
+/// `last_kf_depth_m`, the last keyframe's median depth (0: unknown), scales
+/// the translation threshold (TrackingParams::keyframe_baseline_ratio).
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
-                   int64_t now_ns, const TrackingParams& params);
+                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m = 0.0);
+
+/// Median of the valid (> 0, finite) depths of `depth_m` (CV_32F), 0 when none.
+float medianDepth(const cv::Mat& depth_m);
 
 }  // namespace hxmap::alg

@@ -8,8 +8,8 @@
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
-#include <unordered_map>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "hxmap/core/frame.hpp"
@@ -76,9 +76,9 @@ struct RefineJob {
 struct RefineOutcome {
   uint64_t job_id = 0;
   alg::RefineResult result;
-  double setup_ms = 0;   ///< field initialization and ray collection
-  double train_ms = 0;   ///< the iterations
-  double result_ms = 0;  ///< write-back and sigma_Neural
+  double setup_ms = 0;       ///< field initialization and ray collection
+  double train_ms = 0;       ///< the iterations
+  double result_ms = 0;      ///< write-back and sigma_Neural
   bool out_of_time = false;  ///< stopped by params.time_budget_ms
   /// The trained field as the pose feedback's implicit surface (sampled
   /// once, timed in result_ms); null when the job had nothing to learn.
@@ -103,9 +103,9 @@ struct FrameResult {
   bool tracked = false;     ///< pose from ICP (or the first frame)
   bool integrated = false;  ///< the frame was fused into the map
   bool keyframe = false;
-  uint32_t keyframe_id = 0;   ///< when keyframe: its id (0, 1, ...)
-  size_t rois = 0;            ///< when keyframe: ROIs selected after scoring it
-  std::string failure;      ///< why the frame was not tracked or not fused
+  uint32_t keyframe_id = 0;  ///< when keyframe: its id (0, 1, ...)
+  size_t rois = 0;           ///< when keyframe: ROIs selected after scoring it
+  std::string failure;       ///< why the frame was not tracked or not fused
   int inliers = 0;
   double rms_residual_m = 0;
   std::array<double, kStageCount> stage_ms{};
@@ -124,14 +124,13 @@ struct KeyframeCorrection {
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
 };
 
-
 /// What applying corrections did, summed over a run.
 struct FeedbackCounters {
-  uint64_t corrections = 0;        ///< keyframe corrections applied
-  uint64_t corrections_late = 0;   ///< for keyframes no longer kept (ignored)
-  uint64_t reintegrations = 0;     ///< keyframes de-integrated and integrated at the new pose
+  uint64_t corrections = 0;       ///< keyframe corrections applied
+  uint64_t corrections_late = 0;  ///< for keyframes no longer kept (ignored)
+  uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
   uint64_t reintegrations_pending = 0;
-  double reintegrate_ms = 0;       ///< total
+  double reintegrate_ms = 0;  ///< total
 };
 
 /// Process-wide: large buffers come from the heap and heap memory is kept
@@ -147,8 +146,7 @@ void keepHeapBetweenFrames();
 
 class Frontend {
  public:
-  Frontend(const alg::PinholeCamera& camera, const FrontendParams& params,
-           ParallelFor parallel = serialFor);
+  Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel = serialFor);
 
   /// Pose of the first frame (default identity).
   void setInitialPose(const Eigen::Isometry3d& T_world_cam) { T_initial_ = T_world_cam; }
@@ -177,9 +175,9 @@ class Frontend {
   /// Between frames: the keyframe's pose becomes `c.T_world_cam` in the
   /// trajectory; when it is the newest keyframe the live pose moves with it
   /// (the next frame is tracked from there). Other frames keep their poses:
-  /// each was tracked against the map, not chained to the keyframe. A keyframe that moved beyond the feedback thresholds is
-  /// queued for re-integration (reintegratePending). False for a keyframe no
-  /// longer kept (slid out of the window).
+  /// each was tracked against the map, not chained to the keyframe. A keyframe that moved beyond the feedback
+  /// thresholds is queued for re-integration (reintegratePending). False for a keyframe no longer kept (slid out of the
+  /// window).
   bool applyKeyframeCorrection(const KeyframeCorrection& c);
   /// Re-integrates up to `max` queued keyframes (de-integrated at the pose
   /// they were fused with, integrated at the corrected one); the count done.
@@ -256,6 +254,7 @@ class Frontend {
   Eigen::Isometry3d velocity_ = Eigen::Isometry3d::Identity();  ///< T_prev^-1 T_last
   Eigen::Isometry3d T_last_kf_ = Eigen::Isometry3d::Identity();
   int64_t last_kf_ns_ = 0;
+  float last_kf_depth_m_ = 0;  ///< median depth of the last keyframe (its coarsest level)
   Trajectory trajectory_;
   size_t lost_frames_ = 0, keyframes_ = 0;
   alg::QualityMap quality_;
@@ -289,8 +288,8 @@ class Frontend {
 /// Pose feedback's figures for a run's summary.
 struct FeedbackTally {
   uint64_t windows = 0, stopped = 0, failed = 0;
-  uint64_t corrections_sent = 0;      ///< keyframe estimates that stood out of the solve's noise
-  std::vector<double> solve_ms;       ///< per solved window, without the stop callback's waits
+  uint64_t corrections_sent = 0;           ///< keyframe estimates that stood out of the solve's noise
+  std::vector<double> solve_ms;            ///< per solved window, without the stop callback's waits
   double cost_before = 0, cost_after = 0;  ///< summed over windows
   /// Residuals at the solution, summed over windows: explicit (TSDF) and
   /// implicit (refined regions' fields), photometric + depth.
