@@ -84,7 +84,7 @@ std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsPar
 /// What the refinement jobs of a run did, for the summary.
 struct RefineTally {
   std::vector<double> job_ms, iteration_ms, setup_ms, result_ms;
-  size_t jobs = 0, converged = 0, out_of_time = 0, voxels = 0;
+  size_t jobs = 0, converged = 0, out_of_time = 0, voxels = 0, completed = 0;
   double l1_before = 0, l1_after = 0, memory_mb_max = 0;
   void add(const RefineOutcome& o) {
     const auto& st = o.result.stats;
@@ -92,6 +92,7 @@ struct RefineTally {
     converged += st.converged;
     out_of_time += o.out_of_time;
     voxels += st.patch_entries;
+    completed += st.completed;
     job_ms.push_back(o.setup_ms + o.train_ms + o.result_ms);
     setup_ms.push_back(o.setup_ms);
     result_ms.push_back(o.result_ms);
@@ -475,12 +476,13 @@ int runCommand(const RunOptions& o) {
     const auto pr = percentiles(refine.result_ms);
     const double n = static_cast<double>(refine.jobs);
     summary += fmt::format(
-        "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back\n"
+        "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back ({} "
+        "completed where fusion had none)\n"
         "  per job median {:.0f} ms (setup {:.1f} ms, write-back and field sampling {:.1f} ms), per iteration median "
         "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
         "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
-        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, pj.median, ps.median, pr.median, pi.median,
-        refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, refine.completed, pj.median, ps.median,
+        pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
     size_t detail_bytes = 0;
     const auto details = frontend.details();
     for (const auto& d : details) detail_bytes += d->memoryBytes();

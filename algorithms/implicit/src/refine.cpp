@@ -209,10 +209,10 @@ bool RoiRefiner::completes(int x, int y, int z) const {
   // voxels, 70 % of it stayed empty), and the blocks behind them were
   // never allocated. The field, trained on those keyframes' rays, has the
   // surface there. It is written back where the cell's rays render better
-  // from the field than from the TSDF (the same test as below, with the
+  // from the field than from the TSDF (writebackRatio's test, with the
   // evidence required: kMinCellRays of both), at kCompletionWeight: one
-  // good observation's worth, so fusion overrides it as soon as a frame
-  // sees the voxel at a usable angle.
+  // good observation's worth, so fusion outweighs it after a frame or two
+  // that see the voxel at a usable angle.
   const Eigen::Vector3f at = Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
                              Eigen::Vector3f::Constant(0.5f);
   const Cell& c = cells_[cellOf(at)];
