@@ -57,8 +57,8 @@ TEST_F(Pipeline, TracksNoisySyntheticSequence) {
     chosen += roi.blocks.size();
     EXPECT_FALSE(roi.keyframes.empty());
     EXPECT_LT(roi.keyframes.back(), fe.keyframes());
-    EXPECT_TRUE(roi.box_world.contains(
-        (roi.blocks[0].cast<float>() + Eigen::Vector3f::Constant(0.5f)) * fe.map().blockSize()));
+    EXPECT_TRUE(
+        roi.box_world.contains((roi.blocks[0].cast<float>() + Eigen::Vector3f::Constant(0.5f)) * fe.map().blockSize()));
   }
   const auto& qp = FrontendParams{}.quality;
   EXPECT_EQ(chosen, std::min<size_t>(qp.max_blocks, static_cast<size_t>(std::ceil(qp.top_fraction * scores.size()))));
@@ -230,7 +230,8 @@ TEST_F(Pipeline, CorruptFramesNeverCrash) {
   RgbdFrame nan = frame(1);
   for (int v = 0; v < nan.depth.rows; v += 7) {
     for (int u = 0; u < nan.depth.cols; u += 5) {
-      nan.depth.at<float>(v, u) = (u % 2) ? std::numeric_limits<float>::quiet_NaN() : std::numeric_limits<float>::infinity();
+      nan.depth.at<float>(v, u) =
+          (u % 2) ? std::numeric_limits<float>::quiet_NaN() : std::numeric_limits<float>::infinity();
     }
   }
   nan.depth.at<float>(5, 5) = -1.0f;
@@ -295,6 +296,28 @@ TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   std::ofstream(cfg) << "tsdf:\n  voxel: 1\n";
   o.config = cfg;
   EXPECT_EQ(runCommand(o), 2);
+}
+
+TEST(SynthCommand, BadSceneTrajectoryOrScaleAreUsageErrorsAndWriteNothing) {
+  SynthOptions o;
+  o.out_dir = test::tempDir("synth_bad") + "/seq";
+  o.frames = 2;
+  o.scale = 0.01;  // below 0.05
+  EXPECT_EQ(synthCommand(o), 2);
+  o.scale = -1;
+  o.scene = "castle";
+  EXPECT_EQ(synthCommand(o), 2);
+  o.scene = "quality";
+  o.trajectory = "loop";
+  EXPECT_EQ(synthCommand(o), 2);
+  EXPECT_FALSE(std::filesystem::exists(o.out_dir));
+  o.trajectory = "inspect";
+  o.scale = 0.5;
+  ASSERT_EQ(synthCommand(o), 0);
+  std::ifstream calib(o.out_dir + "/calibration.yaml");
+  std::string first;
+  std::getline(calib, first);
+  EXPECT_NE(first.find("scale 0.5"), std::string::npos) << first;
 }
 
 }  // namespace
