@@ -386,9 +386,14 @@ void Frontend::keepKeyframeImages(uint32_t id) {
   // rendered no surface for 83 % of their pixels).
   const float lo = static_cast<float>(params_.preprocess.min_depth_m);
   const float hi = static_cast<float>(std::min(params_.preprocess.max_depth_m, params_.tsdf.max_integration_depth_m));
-  k.depth.forEach<float>([&](float& z, const int*) {
-    if (!(z >= lo && z <= hi)) z = 0.0f;
-  });
+  // A plain loop, not cv::Mat::forEach: that runs on OpenCV's TBB pool,
+  // whose synchronization ThreadSanitizer does not see.
+  for (int v = 0; v < k.depth.rows; ++v) {
+    float* row = k.depth.ptr<float>(v);
+    for (int u = 0; u < k.depth.cols; ++u) {
+      if (!(row[u] >= lo && row[u] <= hi)) row[u] = 0.0f;
+    }
+  }
   if (!l.normal.empty()) k.normal = l.normal.clone();
   if (last_frame_.has_color && !last_frame_.rgb.empty()) {
     cv::resize(last_frame_.rgb, k.rgb, l.depth.size(), 0, 0, cv::INTER_AREA);
