@@ -83,8 +83,10 @@ struct TrackingParams {
   /// 5 cm. On the quality room at half size and 1 cm voxels it raised the
   /// refined ROIs' F1 gain from +8.7 to +11.4 points. It is off by default
   /// because on the TUM slice (about 1 m away) the 10 instead of 4
-  /// keyframes made more refinement jobs whose fields pose feedback then
-  /// used, and ATE went 0.54 -> 0.57 cm (0.53 for both with feedback off).
+  /// keyframes made more refinement jobs and pose-feedback corrections, and
+  /// ATE went from 0.53-0.54 to 0.54-0.57 cm over six runs each (median
+  /// 0.54 -> 0.55; pose feedback runs beside the frontend, so runs differ;
+  /// 0.53 for both with feedback off).
   double keyframe_baseline_ratio = 0.0;
   double keyframe_rotation_deg = 10.0;
   double keyframe_interval_s = 1.0;
