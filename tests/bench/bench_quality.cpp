@@ -193,10 +193,7 @@ int main(int argc, char** argv) {
   for (int k = 0; k < static_cast<int>(scene.primitives().size()); ++k) {
     const auto& p = scene.primitives()[k];
     if (p.bad == drv::Primitive::Bad::kNo) continue;
-    names[k] = p.kind == drv::Primitive::Kind::kCapsule ? "rod"
-               : p.bad == drv::Primitive::Bad::kEdges   ? "board edge"
-               : p.noise_scale > 1                      ? "noisy patch"
-                                                        : "grazing shelf";
+    names[k] = test::badRegionName(p);
   }
   struct Tally {
     size_t blocks = 0, chosen = 0;

@@ -96,11 +96,7 @@ std::string regionKind(const drv::SyntheticScene& scene, const Eigen::Vector3f& 
   int k = -1;
   const float d_bad = scene.badDistance(p, &k);
   if (!(d_bad < 3 * voxel && k >= 0)) return "clean";
-  const auto& prim = scene.primitives()[static_cast<size_t>(k)];
-  return prim.kind == drv::Primitive::Kind::kCapsule ? "rod"
-         : prim.bad == drv::Primitive::Bad::kEdges   ? "board edge"
-         : prim.noise_scale > 1                      ? "noisy patch"
-                                                     : "grazing shelf";
+  return test::badRegionName(scene.primitives()[static_cast<size_t>(k)]);
 }
 
 // Per kind of region, the share of `pts` within 1 cm of `to`, the kind's

@@ -50,6 +50,15 @@ inline float benchSceneScale() {
   return s > 0 ? s : 1.0f;
 }
 
+/// The name of a known-bad primitive of the quality room, by what makes it
+/// bad: "rod", "board edge", "noisy patch" or "grazing shelf".
+inline const char* badRegionName(const drv::Primitive& p) {
+  return p.kind == drv::Primitive::Kind::kCapsule ? "rod"
+         : p.bad == drv::Primitive::Bad::kEdges   ? "board edge"
+         : p.noise_scale > 1                      ? "noisy patch"
+                                                  : "grazing shelf";
+}
+
 /// The quality room at benchSceneScale().
 inline drv::SyntheticScene benchQualityRoom() { return drv::SyntheticScene::qualityRoom().scaled(benchSceneScale()); }
 

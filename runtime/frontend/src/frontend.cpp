@@ -133,7 +133,9 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
       keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
     T_last_kf_ = T;
     last_kf_ns_ = frame.stamp_ns;
-    if (!last_frame_.levels.empty()) last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
+    if (params_.tracking.keyframe_baseline_ratio > 0 && !last_frame_.levels.empty()) {
+      last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
+    }
     ++keyframes_;
     if (params_.quality_enabled) {
       StageTimer t(r.stage_ms[kQuality]);

@@ -164,6 +164,16 @@ TEST(ImplicitLayers, TrilinearGridIsExactOnLinearFunctionsAndClampsOutside) {
   EXPECT_NEAR(v, values.back(), 1e-4f);
 }
 
+// A job trained for all of p.iterations (no early stop), and its result.
+RefineResult trainFully(const TsdfMap& map, const Eigen::AlignedBox3f& box,
+                        const std::vector<KeyframeImages>& keyframes, ImplicitParams p) {
+  p.convergence_rel = 0;
+  RoiRefiner refiner(map, box, keyframes, p);
+  while (refiner.iterate(10)) {
+  }
+  return refiner.result();
+}
+
 class PlaneScene : public ::testing::Test {
  protected:
   // The map is fused from views of a plane 1.2 cm behind where the
@@ -367,11 +377,7 @@ TEST_F(PlaneScene, KeyframeNoiseAloneBarelyMovesTheMap) {
   }
   ImplicitParams p = smallParams();
   p.iterations = 80;
-  p.convergence_rel = 0;
-  RoiRefiner refiner(clean, box_, noisy, p);
-  while (refiner.iterate(10)) {
-  }
-  const RefineResult r = refiner.result();
+  const RefineResult r = trainFully(clean, box_, noisy, p);
   ASSERT_FALSE(r.patch.entries.empty());
   // Every written voxel keeps most of its fused value: without a bias its
   // weight is one observation's, 1 / n of the TSDF's (32 frames), far below
@@ -402,13 +408,9 @@ TEST_F(PlaneScene, AFieldThatRendersWorseThanTheTsdfWritesNothingBack) {
   }
   ImplicitParams p = smallParams();
   p.iterations = 40;
-  p.convergence_rel = 0;
   p.learning_rate_grid = 1.0;
   p.learning_rate_mlp = 0.3;
-  RoiRefiner refiner(clean, box_, keyframes_, p);
-  while (refiner.iterate(10)) {
-  }
-  const RefineResult r = refiner.result();
+  const RefineResult r = trainFully(clean, box_, keyframes_, p);
   EXPECT_GT(r.stats.depth_l1_after_m, 2.0 * r.stats.depth_l1_before_m) << "the field should have diverged";
   EXPECT_TRUE(r.patch.entries.empty()) << r.patch.entries.size() << " voxels written back";
 }
@@ -455,11 +457,7 @@ TEST_F(PlaneScene, APatchFusionNeverObservedIsCompletedFromTheKeyframes) {
   ASSERT_NEAR(surfaceZ(holed, 0.14f, 0.14f), kTrueZ, 0.003f);
   ImplicitParams p = smallParams();
   p.iterations = 120;
-  p.convergence_rel = 0;
-  RoiRefiner refiner(holed, box_, keyframes_, p);
-  while (refiner.iterate(10)) {
-  }
-  const RefineResult r = refiner.result();
+  const RefineResult r = trainFully(holed, box_, keyframes_, p);
   EXPECT_GT(r.stats.completed, 8u);  // 3 x 3 columns of voxels, two or more deep
   for (const auto& e : r.patch.entries) {
     Voxel v;
@@ -524,11 +522,7 @@ TEST(ShadowScene, RaysThatSawThroughAShadowClearItAndFusionKeepsItClear) {
 
   ImplicitParams p = smallParams();
   p.iterations = 120;
-  p.convergence_rel = 0;
-  RoiRefiner refiner(map, box, keyframes, p);
-  while (refiner.iterate(10)) {
-  }
-  RefineResult r = refiner.result();
+  RefineResult r = trainFully(map, box, keyframes, p);
   EXPECT_GT(r.stats.free_space_rays, 100u);
   EXPECT_EQ(r.stats.free_space_rays, r.stats.rays);
   TsdfMap refined = map;
