@@ -70,9 +70,17 @@ std::string meshScoresText(const alg::MeshScores& s, const alg::MeshMetricsParam
       p.threshold_coarse_m * 100, 100 * s.precision_coarse, 100 * s.recall_coarse, 100 * s.f1_coarse);
 }
 
-std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsParams& p) {
-  std::string out = fmt::format("mesh vs ground truth ({} / {} samples; unobserved ground truth excluded)\n",
-                                m.reconstruction_samples, m.ground_truth_samples);
+std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsParams& p,
+                            const alg::ObservedBy* observed) {
+  const std::string excluded = observed == nullptr ? ""
+                               : observed->min_abs_cos > 0
+                                   ? fmt::format(
+                                         "; ground truth out of view or seen only at |cos(incidence)| < {:g} "
+                                         "(the sensor returns no depth there) excluded",
+                                         observed->min_abs_cos)
+                                   : "; ground truth out of view excluded";
+  std::string out = fmt::format("mesh vs ground truth ({} / {} samples{})\n", m.reconstruction_samples,
+                                m.ground_truth_samples, excluded);
   out += "  point-to-surface (nearest triangle):\n    " + meshScoresText(m.point_to_surface, p);
   if (p.point_to_point) {
     out += "  point-to-sampled-point (as many published tables; sampling-limited at fine thresholds):\n    " +
@@ -455,7 +463,7 @@ int runCommand(const RunOptions& o) {
       spdlog::info("scoring the mesh against {} ...", gt_mesh_path.string());
       // Ground truth counts as observed only from the poses of the frames
       // this run processed (a --max-frames run sees less of the scene).
-      alg::ObservedBy observed{cam, {}, c.preprocess.max_depth_m};
+      alg::ObservedBy observed{cam, {}, c.preprocess.max_depth_m, dataset->sensorGrazingCos()};
       const int64_t first_ns = dataset->stamp(frames.front()) - 50'000'000;
       const int64_t last_ns = dataset->stamp(frames.back()) + 50'000'000;
       for (const auto& p : ground_truth) {
@@ -463,7 +471,7 @@ int runCommand(const RunOptions& o) {
       }
       const auto mp = meshParams(c.eval);
       const auto m = alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, parallel);
-      summary += meshMetricsText(m, mp);
+      summary += meshMetricsText(m, mp, &observed);
     }
   }
   summary += qualityText(frontend);
@@ -620,10 +628,11 @@ int evalCommand(const EvalOptions& o) {
         spdlog::error("{}", ds.message());
         return 2;
       }
-      observed = std::make_unique<alg::ObservedBy>(alg::ObservedBy{(*ds)->camera(), (*ds)->groundTruth(), 10.0});
+      observed = std::make_unique<alg::ObservedBy>(
+          alg::ObservedBy{(*ds)->camera(), (*ds)->groundTruth(), 10.0, (*ds)->sensorGrazingCos()});
     }
     const auto m = alg::computeMeshMetrics(*rec, *gt, mp, observed.get(), makeParallelFor(0));
-    std::fputs(meshMetricsText(m, mp).c_str(), stdout);
+    std::fputs(meshMetricsText(m, mp, observed.get()).c_str(), stdout);
     did = true;
   }
   if (!did) {

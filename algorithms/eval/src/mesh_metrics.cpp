@@ -1,14 +1,17 @@
 #include "hxmap/eval/mesh_metrics.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <random>
 
 #include "hxmap/eval/triangle_bvh.hpp"
 
 namespace hxmap::alg {
 
-std::vector<Eigen::Vector3f> sampleSurface(const TriangleMesh& mesh, int samples, uint64_t seed) {
+std::vector<Eigen::Vector3f> sampleSurface(const TriangleMesh& mesh, int samples, uint64_t seed,
+                                           std::vector<Eigen::Vector3f>* normals) {
   std::vector<Eigen::Vector3f> points;
+  if (normals != nullptr) normals->clear();
   if (mesh.triangles.empty() || samples <= 0) return points;
   std::vector<double> cdf(mesh.triangles.size());
   double total = 0;
@@ -35,6 +38,7 @@ std::vector<Eigen::Vector3f> sampleSurface(const TriangleMesh& mesh, int samples
     const Eigen::Vector3d a = mesh.vertices[t[0]].cast<double>(), b = mesh.vertices[t[1]].cast<double>(),
                           c = mesh.vertices[t[2]].cast<double>();
     points.push_back((a + u * (b - a) + v * (c - a)).cast<float>());
+    if (normals != nullptr) normals->push_back((b - a).cross(c - a).normalized().cast<float>());
   }
   return points;
 }
@@ -42,6 +46,17 @@ std::vector<Eigen::Vector3f> sampleSurface(const TriangleMesh& mesh, int samples
 std::vector<bool> visibleFromAny(const std::vector<Eigen::Vector3f>& points, const TriangleMesh& mesh,
                                  const PinholeCamera& camera, const Trajectory& poses, double max_depth_m,
                                  const ParallelFor& parallel) {
+  return observedFromAny(points, {}, mesh, ObservedBy{camera, poses, max_depth_m, 0.0}, parallel);
+}
+
+std::vector<bool> observedFromAny(const std::vector<Eigen::Vector3f>& points,
+                                  const std::vector<Eigen::Vector3f>& normals, const TriangleMesh& mesh,
+                                  const ObservedBy& by, const ParallelFor& parallel) {
+  const PinholeCamera& camera = by.camera;
+  const Trajectory& poses = by.poses;
+  const double max_depth_m = by.max_depth_m;
+  const bool incidence = by.min_abs_cos > 0 && normals.size() == points.size();
+  const float min_abs_cos = static_cast<float>(by.min_abs_cos);
   const TriangleBvh bvh(mesh);
   // At most 60 poses, evenly spread: neighbouring frames see nearly the same surface.
   std::vector<Eigen::Isometry3f> T_cam_world;
@@ -58,6 +73,7 @@ std::vector<bool> visibleFromAny(const std::vector<Eigen::Vector3f>& points, con
         const Eigen::Vector3f origin = T.inverse().translation();
         const Eigen::Vector3f d = points[k] - origin;
         const float dist = d.norm();
+        if (incidence && std::abs(normals[k].dot(d)) < min_abs_cos * dist) continue;
         // Visible when nothing is hit before the point (1 cm slack for the
         // point's own triangle and its neighbours).
         if (bvh.raycast(origin, d / dist, 0.0f, dist - 0.01f) >= dist - 0.01f) {
@@ -95,7 +111,8 @@ double shareBelow(const std::vector<float>& d, double t) {
 
 double f1(double p, double r) { return p + r > 0 ? 2 * p * r / (p + r) : 0.0; }
 
-MeshScores score(const std::vector<float>& rec_to_gt, const std::vector<float>& gt_to_rec, const MeshMetricsParams& pm) {
+MeshScores score(const std::vector<float>& rec_to_gt, const std::vector<float>& gt_to_rec,
+                 const MeshMetricsParams& pm) {
   MeshScores s;
   s.accuracy_cm = 100.0 * meanOf(rec_to_gt);
   s.completion_cm = 100.0 * meanOf(gt_to_rec);
@@ -116,10 +133,10 @@ MeshMetrics computeMeshMetrics(const TriangleMesh& reconstruction, const Triangl
                                const ParallelFor& parallel) {
   MeshMetrics m;
   const auto rec_pts = sampleSurface(reconstruction, params.samples, params.seed);
-  auto gt_pts = sampleSurface(ground_truth, params.samples, params.seed + 1);
+  std::vector<Eigen::Vector3f> gt_normals;
+  auto gt_pts = sampleSurface(ground_truth, params.samples, params.seed + 1, &gt_normals);
   if (gt_observed != nullptr) {
-    const auto visible =
-        visibleFromAny(gt_pts, ground_truth, gt_observed->camera, gt_observed->poses, gt_observed->max_depth_m, parallel);
+    const auto visible = observedFromAny(gt_pts, gt_normals, ground_truth, *gt_observed, parallel);
     std::vector<Eigen::Vector3f> kept;
     for (size_t k = 0; k < gt_pts.size(); ++k) {
       if (visible[k]) kept.push_back(gt_pts[k]);
@@ -129,13 +146,17 @@ MeshMetrics computeMeshMetrics(const TriangleMesh& reconstruction, const Triangl
   m.reconstruction_samples = rec_pts.size();
   m.ground_truth_samples = gt_pts.size();
   const TriangleBvh rec_bvh(reconstruction), gt_bvh(ground_truth);
-  const auto rec_to_gt = distances(rec_pts, [&](const Eigen::Vector3f& p) { return gt_bvh.distance(p); }, parallel);
-  const auto gt_to_rec = distances(gt_pts, [&](const Eigen::Vector3f& p) { return rec_bvh.distance(p); }, parallel);
+  const auto rec_to_gt = distances(
+      rec_pts, [&](const Eigen::Vector3f& p) { return gt_bvh.distance(p); }, parallel);
+  const auto gt_to_rec = distances(
+      gt_pts, [&](const Eigen::Vector3f& p) { return rec_bvh.distance(p); }, parallel);
   m.point_to_surface = score(rec_to_gt, gt_to_rec, params);
   if (params.point_to_point) {
     const PointKdTree rec_tree(rec_pts), gt_tree(gt_pts);
-    const auto r2g = distances(rec_pts, [&](const Eigen::Vector3f& p) { return gt_tree.distance(p); }, parallel);
-    const auto g2r = distances(gt_pts, [&](const Eigen::Vector3f& p) { return rec_tree.distance(p); }, parallel);
+    const auto r2g = distances(
+        rec_pts, [&](const Eigen::Vector3f& p) { return gt_tree.distance(p); }, parallel);
+    const auto g2r = distances(
+        gt_pts, [&](const Eigen::Vector3f& p) { return rec_tree.distance(p); }, parallel);
     m.point_to_point = score(r2g, g2r, params);
   }
   return m;

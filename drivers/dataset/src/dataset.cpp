@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <map>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -82,7 +82,8 @@ Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, boo
   if (is_png && (b.size() < 20 || b.find("IEND", b.size() - 16) == std::string::npos)) {
     return Error{fmt::format("{}: {} is a truncated PNG (no IEND chunk)", ref, path)};
   }
-  if (is_jpeg && !endsWithJpegEoi(b)) return Error{fmt::format("{}: {} is a truncated JPEG (no EOI marker)", ref, path)};
+  if (is_jpeg && !endsWithJpegEoi(b))
+    return Error{fmt::format("{}: {} is a truncated JPEG (no EOI marker)", ref, path)};
   cv::Mat img;
   try {
     const cv::Mat buf(1, static_cast<int>(b.size()), CV_8UC1, const_cast<char*>(b.data()));
@@ -93,7 +94,8 @@ Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, boo
   if (img.empty()) return Error{fmt::format("{}: {} is corrupt (the decoder rejected it)", ref, path)};
   if (depth16) {
     if (img.type() != CV_16UC1) {
-      return Error{fmt::format("{}: depth image {} is {}, expected 16-bit single-channel", ref, path, describeType(img))};
+      return Error{
+          fmt::format("{}: depth image {} is {}, expected 16-bit single-channel", ref, path, describeType(img))};
     }
     return img;
   }
@@ -124,8 +126,9 @@ Expected<std::unique_ptr<Dataset>> Dataset::open(const std::string& dir, const D
     d->kind_ = DatasetKind::kReplica;
     status = openReplica(*d, options);
   } else {
-    return Error{dir + ": not a dataset folder: expected rgb.txt + depth.txt (TUM layout) or results/ + traj.txt "
-                       "(Replica NICE-SLAM layout)"};
+    return Error{dir +
+                 ": not a dataset folder: expected rgb.txt + depth.txt (TUM layout) or results/ + traj.txt "
+                 "(Replica NICE-SLAM layout)"};
   }
   if (!status) return Error{status.message()};
   if (options.depth_scale > 0) d->depth_scale_ = options.depth_scale;
@@ -180,8 +183,8 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
   ap.max_difference_ns = static_cast<int64_t>(options.max_association_s * 1e9);
   const auto pairs = alg::associateStamps(rs, ds, ap);
   if (pairs.empty()) {
-    return Error{fmt::format("{}: no color frame in rgb.txt has a depth frame in depth.txt within {} s",
-                             d.dir_, options.max_association_s)};
+    return Error{fmt::format("{}: no color frame in rgb.txt has a depth frame in depth.txt within {} s", d.dir_,
+                             options.max_association_s)};
   }
   const std::string rgb_list = (dir / "rgb.txt").string(), depth_list = (dir / "depth.txt").string();
   for (const auto& [i, j] : pairs) {
@@ -212,6 +215,13 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
     try {
       const YAML::Node n = YAML::LoadFile(calib.string());
       if (n["depth_scale"]) d.depth_scale_ = n["depth_scale"].as<double>();
+      if (n["sensor_grazing_cos"]) {
+        d.sensor_grazing_cos_ = n["sensor_grazing_cos"].as<double>();
+        if (!(d.sensor_grazing_cos_ >= 0 && d.sensor_grazing_cos_ < 1)) {
+          return Error{
+              fmt::format("{}: sensor_grazing_cos must lie in [0, 1), got {}", calib.string(), d.sensor_grazing_cos_)};
+        }
+      }
     } catch (const YAML::Exception& e) {
       return Error{fmt::format("{}: {}", calib.string(), e.what())};
     }
@@ -237,7 +247,8 @@ bool numberedName(const std::string& name, const std::string& prefix, std::initi
       continue;
     }
     const std::string digits = name.substr(prefix.size(), name.size() - prefix.size() - sfx.size());
-    if (digits.empty() || digits.size() > 9 || digits.find_first_not_of("0123456789") != std::string::npos) return false;
+    if (digits.empty() || digits.size() > 9 || digits.find_first_not_of("0123456789") != std::string::npos)
+      return false;
     number = std::stol(digits);
     return true;
   }
@@ -311,8 +322,9 @@ Status Dataset::finishCamera(const DatasetOptions& options) {
     camera_source_ = "configuration (camera section)";
   }
   if (camera_source_.empty()) {
-    return Error{dir_ + ": the dataset carries no intrinsics (no calibration.yaml, cam_params.json or freiburgN in "
-                        "the folder name); give them in the config's camera section"};
+    return Error{dir_ +
+                 ": the dataset carries no intrinsics (no calibration.yaml, cam_params.json or freiburgN in "
+                 "the folder name); give them in the config's camera section"};
   }
   if (camera_.width <= 0 || camera_.height <= 0 || !(camera_.fx > 0) || !(camera_.fy > 0)) {
     return Error{fmt::format("{}: invalid intrinsics from {}", dir_, camera_source_)};
@@ -320,8 +332,8 @@ Status Dataset::finishCamera(const DatasetOptions& options) {
   if (options.undistort && camera_.hasDistortion()) {
     const cv::Matx33d K(camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
     const cv::Mat dist(1, 5, CV_64F, camera_.distortion.data());
-    cv::initUndistortRectifyMap(K, dist, cv::Mat(), K, cv::Size(camera_.width, camera_.height), CV_32FC1,
-                                undistort_x_, undistort_y_);
+    cv::initUndistortRectifyMap(K, dist, cv::Mat(), K, cv::Size(camera_.width, camera_.height), CV_32FC1, undistort_x_,
+                                undistort_y_);
     camera_.distortion = {0, 0, 0, 0, 0};
   }
   return Status::ok();

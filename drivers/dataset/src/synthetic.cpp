@@ -572,9 +572,10 @@ Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scen
   const std::string calib = fmt::format(
       "# hxmap synthetic sequence (seed {}, trajectory {}, noise {}, scale {})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: "
       "{}\n"
-      "height: {}\ndepth_scale: 5000\n",
+      "height: {}\ndepth_scale: 5000\n"
+      "# the sensor returns no depth where |cos(incidence)| is below this\nsensor_grazing_cos: {}\n",
       params.seed, params.trajectory, params.noise ? "on" : "off", params.scale, c.fx, c.fy, c.cx, c.cy, c.width,
-      c.height);
+      c.height, params.grazing_cos);
   for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list},
                                    {"depth.txt", depth_list},
                                    {"groundtruth.txt", formatTumTrajectory(traj)},

@@ -1,4 +1,7 @@
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
 
 #include <gtest/gtest.h>
 
@@ -167,6 +170,32 @@ TEST(Synthetic, WritesTumLayoutThatReadsBack) {
   auto mesh = readPly(dir + "/gt_mesh.ply");
   ASSERT_TRUE(mesh) << mesh.message();
   EXPECT_EQ(mesh->triangles.size(), SyntheticScene::room().mesh().triangles.size());
+  // The sensor's grazing cut-off travels with the sequence (mesh evaluation
+  // counts surface seen only beyond it as never measured).
+  EXPECT_DOUBLE_EQ((*d)->sensorGrazingCos(), p.grazing_cos);
+}
+
+TEST(Synthetic, ABadSensorGrazingCosineIsAnErrorNamingTheFile) {
+  const std::string dir = test::tempDir("seq_cos");
+  SyntheticParams p;
+  p.frames = 2;
+  p.camera = kCam;
+  ASSERT_TRUE(writeSyntheticSequence(dir, SyntheticScene::room(), p));
+  const std::string calib = dir + "/calibration.yaml";
+  std::string text;
+  {
+    std::ifstream in(calib);
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const std::string key = "sensor_grazing_cos: 0.1\n";
+  const auto at = text.find(key);
+  ASSERT_NE(at, std::string::npos) << text;
+  text.replace(at, key.size(), "sensor_grazing_cos: 1.5\n");
+  std::ofstream(calib) << text;
+  auto d = Dataset::open(dir);
+  ASSERT_FALSE(d);
+  EXPECT_NE(d.message().find("calibration.yaml"), std::string::npos) << d.message();
+  EXPECT_NE(d.message().find("sensor_grazing_cos"), std::string::npos) << d.message();
 }
 
 }  // namespace

@@ -75,5 +75,34 @@ TEST(MeshMetrics, UnobservedGroundTruthIsExcluded) {
   EXPECT_NEAR(without.point_to_surface.recall_fine, 0.5, 0.02);
 }
 
+TEST(MeshMetrics, GroundTruthSeenOnlyAtGrazingIncidenceIsExcludedWhenTheSensorCannotMeasureIt) {
+  // A floor seen from 2 m above, and a 10 cm high wall standing on it that
+  // the same camera sees nearly edge-on (|cos(incidence)| about 0.05).
+  TriangleMesh gt = plane(1, 1, 0, 4);
+  TriangleMesh wall = plane(1, 0.1f, 0, 4);
+  for (auto& v : wall.vertices) v = Eigen::Vector3f(0.6f, v.x(), v.y());
+  gt.append(wall);
+  const TriangleMesh rec = plane(1, 1, 0, 4);  // the floor alone
+  ObservedBy obs;
+  obs.camera = PinholeCamera{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+  StampedPose pose;
+  pose.T_world_cam.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // look down
+  pose.T_world_cam.translation() = Eigen::Vector3d(0.5, 0.5, 2.0);
+  obs.poses = {pose};
+  MeshMetricsParams p;
+  p.samples = 20000;
+  const MeshMetrics any_angle = computeMeshMetrics(rec, gt, p, &obs);
+  obs.min_abs_cos = 0.1;
+  const MeshMetrics measurable = computeMeshMetrics(rec, gt, p, &obs);
+  // The wall is ~9% of the ground truth; its lowest centimeter lies within
+  // 1 cm of the floor.
+  EXPECT_NEAR(any_angle.point_to_surface.recall_fine, 1.0 - 0.09 * 0.9, 0.02);
+  EXPECT_GT(measurable.point_to_surface.recall_fine, 0.995);
+  EXPECT_LT(measurable.ground_truth_samples, any_angle.ground_truth_samples);
+  // At a cut-off below the wall's incidence it counts again.
+  obs.min_abs_cos = 0.02;
+  EXPECT_EQ(computeMeshMetrics(rec, gt, p, &obs).ground_truth_samples, any_angle.ground_truth_samples);
+}
+
 }  // namespace
 }  // namespace hxmap::alg

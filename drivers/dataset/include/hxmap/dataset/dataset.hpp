@@ -55,6 +55,11 @@ class Dataset {
   const alg::PinholeCamera& camera() const { return camera_; }
   std::string cameraSource() const { return camera_source_; }
   double depthScale() const { return depth_scale_; }
+  /// The sensor returns no depth where |cos(incidence)| is below this (0:
+  /// unknown). Known for synthetic sequences (calibration.yaml
+  /// sensor_grazing_cos); mesh evaluation counts ground truth seen only at
+  /// such angles as never observed.
+  double sensorGrazingCos() const { return sensor_grazing_cos_; }
   /// Ground truth camera-to-world poses (own stamps), empty when absent.
   const Trajectory& groundTruth() const { return ground_truth_; }
   /// Messages of list lines skipped at open() (skip_bad only).
@@ -82,6 +87,7 @@ class Dataset {
   alg::PinholeCamera camera_;
   std::string camera_source_;
   double depth_scale_ = 5000.0;
+  double sensor_grazing_cos_ = 0.0;
   Trajectory ground_truth_;
   std::vector<std::string> skipped_;
   cv::Mat undistort_x_, undistort_y_;  ///< CV_32F maps, empty when not needed
