@@ -1,8 +1,10 @@
 // Implicit local refinement benchmark (paper 3.3).
 //
 // 1. Synthetic quality room (thin rods, a board's sharp edges, a noisy wall
-//    patch, a shelf seen at a grazing angle; exact ground-truth mesh), at
-//    2 cm and 1 cm voxels: the same frames mapped twice in this process,
+//    patch, a shelf seen at a grazing angle; exact ground-truth mesh): at
+//    full size with 2 cm and 1 cm voxels, and at half size with 1 cm voxels
+//    (its rods and edges are then as thin against the voxels as at full
+//    size with 2 cm). The same frames mapped twice in this process,
 //    TSDF only and hybrid (each keyframe's ROI jobs run to their end and
 //    are written back before the next frame, as `hxmap run` does; the
 //    hybrid mesh is the map's own after the write-backs, the one `hxmap
@@ -13,7 +15,9 @@
 //    refined ROIs: precision from the reconstruction's samples inside the
 //    ROI boxes against the whole ground truth, recall from the observed
 //    ground truth's samples inside the boxes against the whole
-//    reconstruction (no border effects from cropping).
+//    reconstruction (no border effects from cropping). Observed: in view
+//    of a frame, not occluded, and not only at the grazing angles the
+//    synthetic sensor returns no depth for.
 // 2. Depth L1 of the map's renderings against the keyframes' input depth,
 //    inside each job's ROI, just before and just after its write-back, on
 //    the quality room and on the shared Replica slice: over the pixels the
@@ -22,11 +26,11 @@
 // 3. Time per ROI job and per iteration, memory per ROI.
 //
 //   bench_refine [quality_sequence_dir|-] [replica_dir|-] [config.yaml]
-// The configuration applies, except voxel size and truncation (4 voxels);
-// HXMAP_BENCH_VOXELS="0.02" limits the voxel sizes; HXMAP_BENCH_SCALE=0.5
-// maps the quality room at half size (a folder written by `hxmap synth
-// --scene quality --scale 0.5 ...`), where 1 cm voxels see its rods and
-// edges as 2 cm voxels see them at full size. Per kind of region, the
+// The configuration applies, except voxel size and truncation (4 voxels).
+// A quality-room folder (`hxmap synth --scene quality --trajectory inspect
+// --frames 240 [--scale 0.5]`) holds one scale: give it in
+// HXMAP_BENCH_SCALE (default 1). HXMAP_BENCH_SCALE and HXMAP_BENCH_VOXELS
+// (e.g. "0.01") each limit the cases to that scale or voxel size. Per kind of region, the
 // precision and recall inside the ROIs show where the F1 change comes
 // from. Prints numbers; asserts nothing.
 #include <algorithm>
@@ -38,7 +42,10 @@
 #include <limits>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "commands.hpp"
 #include "hxmap/dataset/dataset.hpp"
@@ -79,13 +86,34 @@ alg::TriangleMesh crop(const alg::TriangleMesh& m, const std::vector<Eigen::Alig
 struct Scores {
   double precision = 0, recall = 0, f1 = 0;
 };
+// Samples of the ground truth inside the boxes that the sensor observed
+// (occlusion by the whole scene, not only by what lies in the boxes).
+std::vector<Eigen::Vector3f> observedInside(const alg::TriangleMesh& gt, const std::vector<Eigen::AlignedBox3f>& boxes,
+                                            const alg::ObservedBy& observed, int samples, uint64_t seed) {
+  std::vector<Eigen::Vector3f> normals, pts;
+  const alg::TriangleMesh gc = crop(gt, boxes);
+  if (gc.empty()) return pts;
+  const auto all = alg::sampleSurface(gc, samples, seed, &normals);
+  const auto seen = alg::observedFromAny(all, normals, gt, observed);
+  for (size_t i = 0; i < all.size(); ++i) {
+    if (seen[i]) pts.push_back(all[i]);
+  }
+  return pts;
+}
+
 Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,
                    const std::vector<Eigen::AlignedBox3f>& boxes, const alg::ObservedBy& observed,
                    const alg::MeshMetricsParams& mp) {
   Scores s;
-  const alg::TriangleMesh rc = crop(recon, boxes), gc = crop(gt, boxes);
+  const alg::TriangleMesh rc = crop(recon, boxes);
   if (!rc.empty()) s.precision = alg::computeMeshMetrics(rc, gt, mp).point_to_surface.precision_fine;
-  if (!gc.empty()) s.recall = alg::computeMeshMetrics(recon, gc, mp, &observed).point_to_surface.recall_fine;
+  const auto pts = observedInside(gt, boxes, observed, mp.samples, mp.seed + 1);
+  if (!pts.empty() && !recon.empty()) {
+    const alg::TriangleBvh rec_bvh(recon);
+    size_t within = 0;
+    for (const auto& p : pts) within += rec_bvh.distance(p, 0.02f) <= mp.threshold_fine_m;
+    s.recall = static_cast<double>(within) / static_cast<double>(pts.size());
+  }
   s.f1 = s.precision + s.recall > 0 ? 2 * s.precision * s.recall / (s.precision + s.recall) : 0;
   return s;
 }
@@ -134,14 +162,9 @@ void precisionByKind(const char* label, const alg::TriangleMesh& recon, const al
 void recallByKind(const char* label, const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,
                   const alg::ObservedBy& observed, const drv::SyntheticScene& scene,
                   const std::vector<Eigen::AlignedBox3f>& boxes, float voxel) {
-  const alg::TriangleMesh gc = crop(gt, boxes);
-  if (gc.empty() || recon.empty()) return;
-  const auto all = alg::sampleSurface(gc, 100000, 11);
-  const auto seen = alg::visibleFromAny(all, gt, observed.camera, observed.poses, observed.max_depth_m);
-  std::vector<Eigen::Vector3f> pts;
-  for (size_t i = 0; i < all.size(); ++i) {
-    if (seen[i]) pts.push_back(all[i]);
-  }
+  if (recon.empty()) return;
+  const auto pts = observedInside(gt, boxes, observed, 100000, 11);
+  if (pts.empty()) return;
   withinByKind(label, pts, alg::TriangleBvh(recon), scene, voxel);
 }
 
@@ -277,19 +300,61 @@ void printJobs(const HybridRun& r) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // results as they come, also into a file
-  const drv::SyntheticScene scene = test::benchQualityRoom();
-  test::BenchSequence seq;
-  if (!test::loadOrRenderQualityRoom(argc > 1 ? argv[1] : "", seq)) return 2;
+// One quality-room case: the scene at `scale`, mapped at `voxel` twice.
+void benchRoom(const drv::SyntheticScene& scene, const test::BenchSequence& seq, float scale, double voxel,
+               const rt::FrontendParams& base) {
   const std::vector<RgbdFrame>& frames = seq.frames;
   const Trajectory& gt = seq.ground_truth;
   const alg::PinholeCamera& cam = seq.camera;
   const alg::TriangleMesh gt_mesh = scene.mesh();
   alg::MeshMetricsParams mp;
   mp.point_to_point = false;
-  const alg::ObservedBy observed{cam, gt, 4.0};
+  // Ground truth counts as observed where the synthetic sensor measured it:
+  // in view, and not at the grazing angles it returns no depth for.
+  const alg::ObservedBy observed{cam, gt, 4.0, drv::SyntheticParams{}.grazing_cos};
+  rt::FrontendParams params = base;
+  params.tsdf.voxel_size_m = voxel;
+  params.tsdf.truncation_m = 4 * voxel;
+  const std::string name =
+      scale == 1.0f ? std::string("quality room") : fmt::format("quality room at {:g} size", scale);
+  std::fprintf(stderr, "%s, %.0f cm voxels ...\n", name.c_str(), voxel * 100);
+  const HybridRun r = mapTwice(frames, cam, gt, params);
+  const auto whole_t = alg::computeMeshMetrics(r.tsdf_mesh, gt_mesh, mp, &observed).point_to_surface;
+  const auto whole_h = alg::computeMeshMetrics(r.hybrid_mesh, gt_mesh, mp, &observed).point_to_surface;
+  const Scores in_t = insideBoxes(r.tsdf_mesh, gt_mesh, r.boxes, observed, mp);
+  const Scores in_h = insideBoxes(r.hybrid_mesh, gt_mesh, r.boxes, observed, mp);
+  const auto whole_d = alg::computeMeshMetrics(r.detail_mesh, gt_mesh, mp, &observed).point_to_surface;
+  const Scores in_d = insideBoxes(r.detail_mesh, gt_mesh, r.boxes, observed, mp);
+  std::printf("%s, %zu frames, %.0f cm voxels: mapping %.1f s TSDF only, %.1f s hybrid (jobs inline, one core)\n",
+              name.c_str(), frames.size(), voxel * 100, r.tsdf_s, r.hybrid_s);
+  std::printf("  mesh @1cm            precision  recall     F1\n");
+  std::printf("  whole scene  TSDF     %6.1f%%  %6.1f%%  %6.1f%%\n", 100 * whole_t.precision_fine,
+              100 * whole_t.recall_fine, 100 * whole_t.f1_fine);
+  std::printf("  whole scene  hybrid   %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points; target: never worse)\n",
+              100 * whole_h.precision_fine, 100 * whole_h.recall_fine, 100 * whole_h.f1_fine,
+              100 * (whole_h.f1_fine - whole_t.f1_fine));
+  std::printf("  whole scene  +detail  %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points)\n", 100 * whole_d.precision_fine,
+              100 * whole_d.recall_fine, 100 * whole_d.f1_fine, 100 * (whole_d.f1_fine - whole_t.f1_fine));
+  std::printf("  in %3zu ROIs  TSDF     %6.1f%%  %6.1f%%  %6.1f%%\n", r.boxes.size(), 100 * in_t.precision,
+              100 * in_t.recall, 100 * in_t.f1);
+  std::printf("  in %3zu ROIs  hybrid   %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points; target: >= +10)\n",
+              r.boxes.size(), 100 * in_h.precision, 100 * in_h.recall, 100 * in_h.f1, 100 * (in_h.f1 - in_t.f1));
+  std::printf("  in %3zu ROIs  +detail  %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points)\n", r.boxes.size(),
+              100 * in_d.precision, 100 * in_d.recall, 100 * in_d.f1, 100 * (in_d.f1 - in_t.f1));
+  printJobs(r);
+  std::printf("  precision @1cm inside the ROIs per region kind (share of the ROI surface):\n");
+  const alg::TriangleBvh gt_bvh(gt_mesh);
+  precisionByKind("TSDF", r.tsdf_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
+  precisionByKind("hybrid", r.hybrid_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
+  precisionByKind("+detail", r.detail_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
+  std::printf("  recall @1cm inside the ROIs per region kind (share of the observed ground truth there):\n");
+  recallByKind("TSDF", r.tsdf_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
+  recallByKind("hybrid", r.hybrid_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
+  std::printf("  detail layer: %zu regions kept at the end\n", r.details);
+}
 
+int main(int argc, char** argv) {
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // results as they come, also into a file
   // A configuration's parameters (defaults without one); voxel size and
   // truncation are the benchmark's.
   rt::FrontendParams base;
@@ -302,47 +367,36 @@ int main(int argc, char** argv) {
     }
     base = rt::frontendParams(*cfg);
   }
-  std::vector<double> voxels{0.02, 0.01};
-  if (const char* v = std::getenv("HXMAP_BENCH_VOXELS")) voxels = {std::atof(v)};
-  for (const double voxel : voxels) {
-    rt::FrontendParams params = base;
-    params.tsdf.voxel_size_m = voxel;
-    params.tsdf.truncation_m = 4 * voxel;
-    std::fprintf(stderr, "quality room at %.0f cm voxels ...\n", voxel * 100);
-    const HybridRun r = mapTwice(frames, cam, gt, params);
-    const auto whole_t = alg::computeMeshMetrics(r.tsdf_mesh, gt_mesh, mp, &observed).point_to_surface;
-    const auto whole_h = alg::computeMeshMetrics(r.hybrid_mesh, gt_mesh, mp, &observed).point_to_surface;
-    const Scores in_t = insideBoxes(r.tsdf_mesh, gt_mesh, r.boxes, observed, mp);
-    const Scores in_h = insideBoxes(r.hybrid_mesh, gt_mesh, r.boxes, observed, mp);
-    const auto whole_d = alg::computeMeshMetrics(r.detail_mesh, gt_mesh, mp, &observed).point_to_surface;
-    const Scores in_d = insideBoxes(r.detail_mesh, gt_mesh, r.boxes, observed, mp);
-    std::printf(
-        "quality room, %zu frames, %.0f cm voxels: mapping %.1f s TSDF only, %.1f s hybrid (jobs inline, one core)\n",
-        frames.size(), voxel * 100, r.tsdf_s, r.hybrid_s);
-    std::printf("  mesh @1cm            precision  recall     F1\n");
-    std::printf("  whole scene  TSDF     %6.1f%%  %6.1f%%  %6.1f%%\n", 100 * whole_t.precision_fine,
-                100 * whole_t.recall_fine, 100 * whole_t.f1_fine);
-    std::printf("  whole scene  hybrid   %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points; target: never worse)\n",
-                100 * whole_h.precision_fine, 100 * whole_h.recall_fine, 100 * whole_h.f1_fine,
-                100 * (whole_h.f1_fine - whole_t.f1_fine));
-    std::printf("  whole scene  +detail  %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points)\n", 100 * whole_d.precision_fine,
-                100 * whole_d.recall_fine, 100 * whole_d.f1_fine, 100 * (whole_d.f1_fine - whole_t.f1_fine));
-    std::printf("  in %3zu ROIs  TSDF     %6.1f%%  %6.1f%%  %6.1f%%\n", r.boxes.size(), 100 * in_t.precision,
-                100 * in_t.recall, 100 * in_t.f1);
-    std::printf("  in %3zu ROIs  hybrid   %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points; target: >= +10)\n",
-                r.boxes.size(), 100 * in_h.precision, 100 * in_h.recall, 100 * in_h.f1, 100 * (in_h.f1 - in_t.f1));
-    std::printf("  in %3zu ROIs  +detail  %6.1f%%  %6.1f%%  %6.1f%%   (F1 %+.1f points)\n", r.boxes.size(),
-                100 * in_d.precision, 100 * in_d.recall, 100 * in_d.f1, 100 * (in_d.f1 - in_t.f1));
-    printJobs(r);
-    std::printf("  precision @1cm inside the ROIs per region kind (share of the ROI surface):\n");
-    const alg::TriangleBvh gt_bvh(gt_mesh);
-    precisionByKind("TSDF", r.tsdf_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
-    precisionByKind("hybrid", r.hybrid_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
-    precisionByKind("+detail", r.detail_mesh, gt_bvh, scene, r.boxes, static_cast<float>(voxel));
-    std::printf("  recall @1cm inside the ROIs per region kind (share of the observed ground truth there):\n");
-    recallByKind("TSDF", r.tsdf_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
-    recallByKind("hybrid", r.hybrid_mesh, gt_mesh, observed, scene, r.boxes, static_cast<float>(voxel));
-    std::printf("  detail layer: %zu regions kept at the end\n", r.details);
+  // The cases: (scene scale, voxel size). By default the full-size room at
+  // 2 cm and 1 cm, and the half-size room at 1 cm (its rods and edges are
+  // as thin against 1 cm voxels as the full-size room's against 2 cm).
+  std::vector<std::pair<float, double>> cases{{1.0f, 0.02}, {0.5f, 0.01}, {1.0f, 0.01}};
+  const char* env_scale = std::getenv("HXMAP_BENCH_SCALE");
+  const char* env_voxels = std::getenv("HXMAP_BENCH_VOXELS");
+  const std::string dir = argc > 1 ? argv[1] : "";
+  if (env_scale != nullptr || env_voxels != nullptr || (!dir.empty() && dir != "-")) {
+    // One scale (a folder holds one); the voxel sizes of the cases at that
+    // scale, or the one asked for.
+    const float scale = test::benchSceneScale();
+    std::vector<std::pair<float, double>> chosen;
+    if (env_voxels != nullptr) {
+      chosen.emplace_back(scale, std::atof(env_voxels));
+    } else {
+      for (const auto& c : cases) {
+        if (c.first == scale) chosen.push_back(c);
+      }
+      if (chosen.empty()) chosen.emplace_back(scale, 0.02 * scale);
+    }
+    cases = chosen;
+  }
+  test::BenchSequence seq;
+  float loaded_scale = 0.0f;
+  for (const auto& [scale, voxel] : cases) {
+    if (scale != loaded_scale) {
+      if (!test::loadOrRenderQualityRoom(dir, seq, "inspect", scale)) return 2;
+      loaded_scale = scale;
+    }
+    benchRoom(test::benchQualityRoom(scale), seq, scale, voxel, base);
   }
 
   // Replica slice: depth L1 inside ROIs before and after write-back.

@@ -59,21 +59,24 @@ inline const char* badRegionName(const drv::Primitive& p) {
                                                   : "grazing shelf";
 }
 
-/// The quality room at benchSceneScale().
-inline drv::SyntheticScene benchQualityRoom() { return drv::SyntheticScene::qualityRoom().scaled(benchSceneScale()); }
+/// The quality room at `scale` (default: benchSceneScale()).
+inline drv::SyntheticScene benchQualityRoom(float scale = benchSceneScale()) {
+  return drv::SyntheticScene::qualityRoom().scaled(scale);
+}
 
-/// `dir` empty or "-": render. False (the reason on stderr) when the folder
-/// or one of its frames cannot be read.
+/// `dir` empty or "-": render, at `scale`. False (the reason on stderr) when
+/// the folder or one of its frames cannot be read.
 inline bool loadOrRenderQualityRoom(const std::string& dir, BenchSequence& out,
-                                    const std::string& trajectory = "inspect") {
+                                    const std::string& trajectory = "inspect", float scale = benchSceneScale()) {
   drv::SyntheticParams sp;
   sp.frames = 240;
   sp.trajectory = trajectory;
-  sp.scale = benchSceneScale();
+  sp.scale = scale;
   out = BenchSequence{};
   if (!dir.empty() && dir != "-") return loadDatasetSequence(dir, out);
-  std::fprintf(stderr, "rendering the quality room (%d frames, %s trajectory) ...\n", sp.frames, trajectory.c_str());
-  const drv::SyntheticScene scene = benchQualityRoom();
+  std::fprintf(stderr, "rendering the quality room (%d frames, %s trajectory, scale %g) ...\n", sp.frames,
+               trajectory.c_str(), static_cast<double>(scale));
+  const drv::SyntheticScene scene = benchQualityRoom(scale);
   out.camera = sp.camera;
   out.ground_truth = drv::syntheticTrajectory(sp);
   for (int i = 0; i < sp.frames; ++i) {

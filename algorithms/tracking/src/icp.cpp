@@ -416,9 +416,12 @@ int modelLevel(const TrackingParams& params, int width) {
 }
 
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
-                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m) {
+                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m, double voxel_size_m) {
   const Eigen::Isometry3d rel = T_last_kf.inverse() * T_now;
   double max_translation = params.keyframe_translation_m;
+  if (params.keyframe_translation_voxels > 0 && voxel_size_m > 0) {
+    max_translation = std::min(max_translation, params.keyframe_translation_voxels * voxel_size_m);
+  }
   if (params.keyframe_baseline_ratio > 0 && last_kf_depth_m > 0) {
     max_translation = std::min(max_translation, params.keyframe_baseline_ratio * last_kf_depth_m);
   }

@@ -114,6 +114,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);
   v.boolean("constant_velocity", k.constant_velocity);
   v.number("keyframe_translation_m", k.keyframe_translation_m, 0, 10);
+  v.number("keyframe_translation_voxels", k.keyframe_translation_voxels, 0, 1000);
   v.number("keyframe_baseline_ratio", k.keyframe_baseline_ratio, 0, 10);
   v.number("keyframe_rotation_deg", k.keyframe_rotation_deg, 0, 180);
   v.number("keyframe_interval_s", k.keyframe_interval_s, 0, 3600);

@@ -125,8 +125,8 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   }
 
   // 5. Keyframes by motion and time.
-  if (!initialized_ ||
-      alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking, last_kf_depth_m_)) {
+  if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, frame.stamp_ns, params_.tracking,
+                                          last_kf_depth_m_, params_.tsdf.voxel_size_m)) {
     r.keyframe = true;
     r.keyframe_id = static_cast<uint32_t>(keyframes_);
     if (params_.feedback.enabled)

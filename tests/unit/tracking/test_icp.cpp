@@ -110,6 +110,16 @@ TEST(Keyframes, MotionAndTime) {
   EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p));  // depth unknown: 10 cm
   p.keyframe_baseline_ratio = 0;
   EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p, 1.0));
+  // In voxels: 6 cm is a keyframe at 1 cm voxels (5 voxels), not at 2 cm;
+  // at 4 cm voxels the 10 cm in meters still holds.
+  EXPECT_EQ(p.keyframe_translation_voxels, 5.0);
+  EXPECT_TRUE(isNewKeyframe(I, moved, 0, 1, p, 0.0, 0.01));
+  EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p, 0.0, 0.02));
+  moved.translation().x() = 0.12;
+  EXPECT_TRUE(isNewKeyframe(I, moved, 0, 1, p, 0.0, 0.04));
+  moved.translation().x() = 0.06;
+  p.keyframe_translation_voxels = 0;
+  EXPECT_FALSE(isNewKeyframe(I, moved, 0, 1, p, 0.0, 0.01));
 }
 
 TEST(Keyframes, MedianDepthSkipsInvalidPixels) {

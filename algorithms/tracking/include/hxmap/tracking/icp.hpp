@@ -56,9 +56,12 @@ int modelLevel(const TrackingParams& params, int width);
 
 /// Keyframe test: motion or time since the last keyframe above thresholds;
 /// `last_kf_depth_m`, the last keyframe's median depth (0: unknown), scales
-/// the translation threshold (TrackingParams::keyframe_baseline_ratio).
+/// the translation threshold (TrackingParams::keyframe_baseline_ratio), and
+/// so does the map's `voxel_size_m` (0: unknown;
+/// TrackingParams::keyframe_translation_voxels).
 bool isNewKeyframe(const Eigen::Isometry3d& T_last_kf, const Eigen::Isometry3d& T_now, int64_t last_kf_ns,
-                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m = 0.0);
+                   int64_t now_ns, const TrackingParams& params, double last_kf_depth_m = 0.0,
+                   double voxel_size_m = 0.0);
 
 /// Median of the valid (> 0, finite) depths of `depth_m` (CV_32F), 0 when none.
 float medianDepth(const cv::Mat& depth_m);
