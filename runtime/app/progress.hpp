@@ -1,11 +1,13 @@
 // A progress line on stderr for long runs: redrawn in place on a terminal,
-// one line per 10% otherwise (logs, CI).
+// one line per 10% otherwise (logs, CI); none under -q (only warnings and
+// errors then).
 #pragma once
 
 #include <chrono>
 #include <cstdio>
 #include <string>
 
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 namespace hxmap::rt {
@@ -13,10 +15,14 @@ namespace hxmap::rt {
 class Progress {
  public:
   Progress(std::string what, size_t total)
-      : what_(std::move(what)), total_(total), tty_(isatty(STDERR_FILENO) != 0),
+      : what_(std::move(what)),
+        total_(total),
+        tty_(isatty(STDERR_FILENO) != 0),
+        shown_(spdlog::should_log(spdlog::level::info)),
         start_(std::chrono::steady_clock::now()) {}
 
   void update(size_t done, const std::string& extra = "") {
+    if (!shown_) return;
     const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
     const double rate = s > 0 ? static_cast<double>(done) / s : 0.0;
     const int pct = total_ ? static_cast<int>(100 * done / total_) : 100;
@@ -36,6 +42,7 @@ class Progress {
   std::string what_;
   size_t total_;
   bool tty_;
+  bool shown_;
   int last_decile_ = -1;
   std::chrono::steady_clock::time_point start_;
 };
