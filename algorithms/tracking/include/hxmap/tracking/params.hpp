@@ -83,8 +83,9 @@ struct TrackingParams {
   /// and the same map, scaled; a keyframe spacing fixed in meters was the one
   /// length that broke this, and keyframes are the views refinement trains
   /// on. On the half-size quality room at 1 cm voxels the refined ROIs' F1
-  /// gain went from +8.1 (10 cm) to +14.7 points (5 cm, with this
-  /// default); at 2 cm voxels, the TUM slice and Replica nothing changes.
+  /// gain went from +8.1 (10 cm) to +13.4 and +14.7 points in two runs (5
+  /// cm, with this default); at 2 cm voxels, the TUM slice and Replica
+  /// nothing changes.
   double keyframe_translation_voxels = 5.0;
   /// Also a keyframe once the translation exceeds this share of the last
   /// keyframe's median depth (0, the default: off). What keyframes are for
@@ -93,7 +94,9 @@ struct TrackingParams {
   /// distance to the scene: at 0.04 a wall 2.5 m away gets a keyframe
   /// every 10 cm as with the fixed threshold, a table top 1.2 m away every
   /// 5 cm. On the quality room at half size and 1 cm voxels it raised the
-  /// refined ROIs' F1 gain from +8.7 to +11.4 points. It is off by default
+  /// refined ROIs' F1 gain from +8.7 to +11.4 points (before
+  /// keyframe_translation_voxels, and before the mesh metrics left out
+  /// ground truth seen only at grazing angles). It is off by default
   /// because on the TUM slice (about 1 m away) the 10 instead of 4
   /// keyframes made more refinement jobs and pose-feedback corrections, and
   /// ATE went from 0.53-0.54 to 0.54-0.57 cm over six runs each (median
