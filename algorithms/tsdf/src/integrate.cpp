@@ -177,13 +177,18 @@ inline float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max
 }
 
 inline void fuseAppearance(VoxelBlock& blk, int i, float tsdf, float a, const uint8_t* rgb) {
-  if (rgb) {  // in [0, 255]: +0.5 and truncation round to nearest (no libm call)
-    VoxelColor& k = blk.color[i];
-    k.r = static_cast<uint8_t>(k.r + a * (static_cast<float>(rgb[0]) - k.r) + 0.5f);
-    k.g = static_cast<uint8_t>(k.g + a * (static_cast<float>(rgb[1]) - k.g) + 0.5f);
-    k.b = static_cast<uint8_t>(k.b + a * (static_cast<float>(rgb[2]) - k.b) + 0.5f);
-  }
   VoxelStats& st = blk.stats[i];
+  if (rgb) {  // in [0, 255]: +0.5 and truncation round to nearest (no libm call)
+    // DESIGN: the first in-band observation sets the color. The weight a
+    // voxel already holds may come from free-space clamps alone, which
+    // carry no color: blending with the black a voxel starts from darkened
+    // the surface wherever the band of earlier frames reached it first.
+    const float ac = st.updates == 0 ? 1.0f : a;
+    VoxelColor& k = blk.color[i];
+    k.r = static_cast<uint8_t>(k.r + ac * (static_cast<float>(rgb[0]) - k.r) + 0.5f);
+    k.g = static_cast<uint8_t>(k.g + ac * (static_cast<float>(rgb[1]) - k.g) + 0.5f);
+    k.b = static_cast<uint8_t>(k.b + ac * (static_cast<float>(rgb[2]) - k.b) + 0.5f);
+  }
   ++st.updates;
   const float delta = tsdf - st.mean_m;
   st.mean_m += delta / static_cast<float>(st.updates);
@@ -210,7 +215,11 @@ inline void removeObservation(VoxelBlock& blk, int i, float tsdf, float w, float
     g.weight = remaining;
     return;
   }
-  if (rgb) {
+  VoxelStats& st = blk.stats[i];
+  if (rgb && st.updates <= 1) {  // the only in-band observation goes: no color left
+    VoxelColor& k = blk.color[i];
+    k.r = k.g = k.b = 0;
+  } else if (rgb) {
     VoxelColor& k = blk.color[i];
     auto un = [&](uint8_t c, uint8_t o) {
       const float v = (static_cast<float>(c) * g.weight - static_cast<float>(o) * w) * inv;
@@ -221,7 +230,6 @@ inline void removeObservation(VoxelBlock& blk, int i, float tsdf, float w, float
     k.b = un(k.b, rgb[2]);
   }
   g.weight = remaining;
-  VoxelStats& st = blk.stats[i];
   if (st.updates <= 1) {
     st = VoxelStats{};
     return;

@@ -26,10 +26,14 @@ PatchStats applyPatch(TsdfMap& map, const TsdfPatch& patch) {
     const float a = e.weight / new_w;
     g.sdf_m += a * (s - g.sdf_m);
     if (e.has_color) {
-      VoxelColor& c = blk.color[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)];
-      c.r = static_cast<uint8_t>(c.r + a * (static_cast<float>(e.rgb[0]) - c.r) + 0.5f);
-      c.g = static_cast<uint8_t>(c.g + a * (static_cast<float>(e.rgb[1]) - c.g) + 0.5f);
-      c.b = static_cast<uint8_t>(c.b + a * (static_cast<float>(e.rgb[2]) - c.b) + 0.5f);
+      const int i = VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7);
+      // A voxel with no in-band observation has no color yet (see
+      // fuseAppearance): the patch's sets it.
+      const float ac = blk.stats[i].updates == 0 ? 1.0f : a;
+      VoxelColor& c = blk.color[i];
+      c.r = static_cast<uint8_t>(c.r + ac * (static_cast<float>(e.rgb[0]) - c.r) + 0.5f);
+      c.g = static_cast<uint8_t>(c.g + ac * (static_cast<float>(e.rgb[1]) - c.g) + 0.5f);
+      c.b = static_cast<uint8_t>(c.b + ac * (static_cast<float>(e.rgb[2]) - c.b) + 0.5f);
     }
     g.weight = std::min(new_w, max_w);
     uint8_t& flags = blk.color[VoxelBlock::index(e.voxel.x() & 7, e.voxel.y() & 7, e.voxel.z() & 7)].flags;

@@ -140,6 +140,44 @@ TEST(TsdfIntegration, DeintegrationUndoesAnObservation) {
   }
 }
 
+// A wall seen first from farther back (the voxels in front of that
+// surface take free-space clamps: weight, no color), then at the voxels'
+// own depth: the surface there has the wall's color, not a blend with the
+// black a voxel starts from.
+TEST(TsdfIntegration, ColorOfASurfaceFirstReachedByFreeSpaceIsNotDarkened) {
+  TsdfMap map(params(0.02));
+  auto wall = [&](float depth, uint8_t r, uint8_t g, uint8_t b) {
+    DepthObservation o;
+    o.depth_m = cv::Mat(kCam.height, kCam.width, CV_32F, cv::Scalar(depth));
+    o.rgb = cv::Mat(kCam.height, kCam.width, CV_8UC3, cv::Scalar(r, g, b));
+    o.camera = kCam;
+    return o;
+  };
+  integrate(map, wall(1.10f, 30, 30, 30));  // the surface behind: clamps at z = 1.0
+  integrate(map, wall(1.00f, 200, 100, 50));
+  size_t surface = 0, off = 0;
+  for (size_t b = 0; b < map.blockCount(); ++b) {
+    const VoxelBlock& blk = map.block(b);
+    for (int i = 0; i < kBlockVoxels; ++i) {
+      const float z = (static_cast<float>(map.key(b).z() * kBlockSide + i / (kBlockSide * kBlockSide)) + 0.5f) * 0.02f;
+      if (blk.geo[i].weight == 0 || std::abs(z - 1.0f) > 0.015f) continue;
+      ++surface;
+      off +=
+          std::abs(blk.color[i].r - 200) > 2 || std::abs(blk.color[i].g - 100) > 2 || std::abs(blk.color[i].b - 50) > 2;
+    }
+  }
+  EXPECT_GT(surface, 1000u);
+  EXPECT_EQ(off, 0u) << "of " << surface;
+  // Taking the only colored observation back out leaves no color.
+  deintegrate(map, wall(1.00f, 200, 100, 50));
+  for (size_t b = 0; b < map.blockCount(); ++b) {
+    const VoxelBlock& blk = map.block(b);
+    for (int i = 0; i < kBlockVoxels; ++i) {
+      if (blk.stats[i].updates == 0) ASSERT_EQ(blk.color[i].r, 0) << "block " << b << " voxel " << i;
+    }
+  }
+}
+
 TEST(TsdfIntegration, SphereRecoveredWithinHalfAVoxel) {
   for (double voxel : {0.01, 0.02}) {
     drv::Primitive sphere;
