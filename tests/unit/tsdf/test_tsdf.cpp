@@ -173,7 +173,9 @@ TEST(TsdfIntegration, ColorOfASurfaceFirstReachedByFreeSpaceIsNotDarkened) {
   for (size_t b = 0; b < map.blockCount(); ++b) {
     const VoxelBlock& blk = map.block(b);
     for (int i = 0; i < kBlockVoxels; ++i) {
-      if (blk.stats[i].updates == 0) ASSERT_EQ(blk.color[i].r, 0) << "block " << b << " voxel " << i;
+      if (blk.stats[i].updates == 0) {
+        ASSERT_EQ(blk.color[i].r, 0) << "block " << b << " voxel " << i;
+      }
     }
   }
 }
