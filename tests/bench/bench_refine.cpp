@@ -90,15 +90,11 @@ struct Scores {
 // (occlusion by the whole scene, not only by what lies in the boxes).
 std::vector<Eigen::Vector3f> observedInside(const alg::TriangleMesh& gt, const std::vector<Eigen::AlignedBox3f>& boxes,
                                             const alg::ObservedBy& observed, int samples, uint64_t seed) {
-  std::vector<Eigen::Vector3f> normals, pts;
   const alg::TriangleMesh gc = crop(gt, boxes);
-  if (gc.empty()) return pts;
+  if (gc.empty()) return {};
+  std::vector<Eigen::Vector3f> normals;
   const auto all = alg::sampleSurface(gc, samples, seed, &normals);
-  const auto seen = alg::observedFromAny(all, normals, gt, observed);
-  for (size_t i = 0; i < all.size(); ++i) {
-    if (seen[i]) pts.push_back(all[i]);
-  }
-  return pts;
+  return alg::keepObserved(all, normals, gt, observed);
 }
 
 Scores insideBoxes(const alg::TriangleMesh& recon, const alg::TriangleMesh& gt,

@@ -86,6 +86,17 @@ std::vector<bool> observedFromAny(const std::vector<Eigen::Vector3f>& points,
   return {visible.begin(), visible.end()};
 }
 
+std::vector<Eigen::Vector3f> keepObserved(const std::vector<Eigen::Vector3f>& points,
+                                          const std::vector<Eigen::Vector3f>& normals, const TriangleMesh& mesh,
+                                          const ObservedBy& by, const ParallelFor& parallel) {
+  const auto observed = observedFromAny(points, normals, mesh, by, parallel);
+  std::vector<Eigen::Vector3f> kept;
+  for (size_t k = 0; k < points.size(); ++k) {
+    if (observed[k]) kept.push_back(points[k]);
+  }
+  return kept;
+}
+
 namespace {
 
 template <typename DistanceFn>
@@ -135,14 +146,7 @@ MeshMetrics computeMeshMetrics(const TriangleMesh& reconstruction, const Triangl
   const auto rec_pts = sampleSurface(reconstruction, params.samples, params.seed);
   std::vector<Eigen::Vector3f> gt_normals;
   auto gt_pts = sampleSurface(ground_truth, params.samples, params.seed + 1, &gt_normals);
-  if (gt_observed != nullptr) {
-    const auto visible = observedFromAny(gt_pts, gt_normals, ground_truth, *gt_observed, parallel);
-    std::vector<Eigen::Vector3f> kept;
-    for (size_t k = 0; k < gt_pts.size(); ++k) {
-      if (visible[k]) kept.push_back(gt_pts[k]);
-    }
-    gt_pts.swap(kept);
-  }
+  if (gt_observed != nullptr) gt_pts = keepObserved(gt_pts, gt_normals, ground_truth, *gt_observed, parallel);
   m.reconstruction_samples = rec_pts.size();
   m.ground_truth_samples = gt_pts.size();
   const TriangleBvh rec_bvh(reconstruction), gt_bvh(ground_truth);

@@ -146,11 +146,17 @@ TEST(Synthetic, NoiseModelIsDeterministicAndKinectLike) {
   EXPECT_LT(invalid, valid_true / 5);
 }
 
+// Parameters of a short sequence of the room at kCam.
+SyntheticParams shortSequence(int frames) {
+  SyntheticParams p;
+  p.frames = frames;
+  p.camera = kCam;
+  return p;
+}
+
 TEST(Synthetic, WritesTumLayoutThatReadsBack) {
   const std::string dir = test::tempDir("seq");
-  SyntheticParams p;
-  p.frames = 4;
-  p.camera = kCam;
+  const SyntheticParams p = shortSequence(4);
   ASSERT_TRUE(writeSyntheticSequence(dir, SyntheticScene::room(), p));
   for (const char* f : {"rgb.txt", "depth.txt", "groundtruth.txt", "calibration.yaml", "gt_mesh.ply"}) {
     EXPECT_TRUE(std::filesystem::exists(std::filesystem::path(dir) / f)) << f;
@@ -177,10 +183,7 @@ TEST(Synthetic, WritesTumLayoutThatReadsBack) {
 
 TEST(Synthetic, ABadSensorGrazingCosineIsAnErrorNamingTheFile) {
   const std::string dir = test::tempDir("seq_cos");
-  SyntheticParams p;
-  p.frames = 2;
-  p.camera = kCam;
-  ASSERT_TRUE(writeSyntheticSequence(dir, SyntheticScene::room(), p));
+  ASSERT_TRUE(writeSyntheticSequence(dir, SyntheticScene::room(), shortSequence(2)));
   const std::string calib = dir + "/calibration.yaml";
   std::string text;
   {

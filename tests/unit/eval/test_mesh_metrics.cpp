@@ -54,6 +54,17 @@ TEST(MeshMetrics, PlaneMovedTwoCentimeters) {
   EXPECT_NEAR(r.point_to_surface.accuracy_cm, 2.0, 0.01);
 }
 
+// One camera 2 m above the middle of the unit square at z = 0, looking down.
+ObservedBy lookingDownAtTheUnitSquare() {
+  ObservedBy obs;
+  obs.camera = PinholeCamera{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+  StampedPose pose;
+  pose.T_world_cam.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  pose.T_world_cam.translation() = Eigen::Vector3d(0.5, 0.5, 2.0);
+  obs.poses = {pose};
+  return obs;
+}
+
 TEST(MeshMetrics, UnobservedGroundTruthIsExcluded) {
   // Two planes; the camera looks only at the first, from above.
   TriangleMesh gt = plane(1, 1, 0, 4);
@@ -61,12 +72,7 @@ TEST(MeshMetrics, UnobservedGroundTruthIsExcluded) {
   for (auto& v : far.vertices) v.x() += 10;
   gt.append(far);
   const TriangleMesh rec = plane(1, 1, 0, 4);
-  ObservedBy obs;
-  obs.camera = PinholeCamera{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
-  StampedPose pose;
-  pose.T_world_cam.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // look down
-  pose.T_world_cam.translation() = Eigen::Vector3d(0.5, 0.5, 2.0);
-  obs.poses = {pose};
+  ObservedBy obs = lookingDownAtTheUnitSquare();
   MeshMetricsParams p;
   p.samples = 20000;
   const MeshMetrics with = computeMeshMetrics(rec, gt, p, &obs);
@@ -83,12 +89,7 @@ TEST(MeshMetrics, GroundTruthSeenOnlyAtGrazingIncidenceIsExcludedWhenTheSensorCa
   for (auto& v : wall.vertices) v = Eigen::Vector3f(0.6f, v.x(), v.y());
   gt.append(wall);
   const TriangleMesh rec = plane(1, 1, 0, 4);  // the floor alone
-  ObservedBy obs;
-  obs.camera = PinholeCamera{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
-  StampedPose pose;
-  pose.T_world_cam.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // look down
-  pose.T_world_cam.translation() = Eigen::Vector3d(0.5, 0.5, 2.0);
-  obs.poses = {pose};
+  ObservedBy obs = lookingDownAtTheUnitSquare();
   MeshMetricsParams p;
   p.samples = 20000;
   const MeshMetrics any_angle = computeMeshMetrics(rec, gt, p, &obs);

@@ -63,6 +63,11 @@ std::vector<bool> observedFromAny(const std::vector<Eigen::Vector3f>& points,
                                   const std::vector<Eigen::Vector3f>& normals, const TriangleMesh& mesh,
                                   const ObservedBy& by, const ParallelFor& parallel = serialFor);
 
+/// The points observedFromAny keeps, in order.
+std::vector<Eigen::Vector3f> keepObserved(const std::vector<Eigen::Vector3f>& points,
+                                          const std::vector<Eigen::Vector3f>& normals, const TriangleMesh& mesh,
+                                          const ObservedBy& by, const ParallelFor& parallel = serialFor);
+
 /// observedFromAny at any incidence.
 std::vector<bool> visibleFromAny(const std::vector<Eigen::Vector3f>& points, const TriangleMesh& mesh,
                                  const PinholeCamera& camera, const Trajectory& poses, double max_depth_m = 10.0,
