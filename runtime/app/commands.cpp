@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cmath>
+#include <cstdlib>
 #include <csignal>
 #include <filesystem>
 #include <optional>
@@ -130,6 +132,46 @@ std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, d
       100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
 }
 
+// Tracking's state changes as log lines (not one line per lost frame):
+// a warning with the reason when tracking degrades or is lost, an info
+// line when it is back, with how long it was away.
+class TrackingLog {
+ public:
+  void add(const FrameResult& r) {
+    ++frame_;
+    if (r.state == state_) return;
+    const double s = static_cast<double>(r.stamp_ns) * 1e-9;
+    if (r.state == alg::TrackingState::kTracked) {
+      spdlog::info("frame {} ({:.3f}): tracking back ({}) after {} frames {}", frame_ - 1, s,
+                   alg::poseSourceName(r.pose_source), frame_ - 1 - since_, alg::trackingStateName(state_));
+    } else {
+      spdlog::warn("frame {} ({:.3f}): tracking {}: {}", frame_ - 1, s, alg::trackingStateName(r.state), r.failure);
+    }
+    state_ = r.state;
+    since_ = frame_ - 1;
+  }
+
+ private:
+  alg::TrackingState state_ = alg::TrackingState::kTracked;
+  uint64_t frame_ = 0, since_ = 0;
+};
+
+std::string trackingSummary(const Frontend& frontend) {
+  const alg::TrackingCounts& c = frontend.trackingCounts();
+  const TrackingCounters& t = frontend.trackingCounters();
+  return fmt::format(
+      "tracking: tracked {}, degraded {} ({} followed frame to frame), lost {} ({} times, longest {} frames; {} "
+      "given interpolated poses once found again), relocalized {}\n"
+      "  relocalization: {} attempts, {:.1f} ms each, {} candidates refused by the ICP check; keyframe database {} "
+      "keyframes, {:.1f} MiB, {:.1f} ms per keyframe's features; constant-velocity retries {} ({} better)\n",
+      c.tracked, c.degraded, c.odometry_frames, frontend.lostFrames(), c.lost_episodes, c.longest_lost_run,
+      t.interpolated_poses, c.relocalized, t.relocalization_attempts,
+      t.relocalization_attempts ? t.relocalization_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
+      t.relocalization_rejected, t.database_keyframes, static_cast<double>(t.database_bytes) / (1 << 20),
+      t.database_keyframes ? t.keyframe_features_ms / static_cast<double>(frontend.keyframes()) : 0.0,
+      t.velocity_retries, t.velocity_wins);
+}
+
 }  // namespace
 
 int runCommand(const RunOptions& o) {
@@ -183,8 +225,17 @@ int runCommand(const RunOptions& o) {
                               c.camera.width,
                               c.camera.height,
                               {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
-  dopt.camera = user_cam;
-  dopt.force_camera = c.camera.override_dataset;
+  // Intrinsics are never a silent guess: the configuration's stand in for a
+  // dataset without its own only when the file gave them; a named preset
+  // wins over the dataset's own.
+  if (!o.camera_preset.empty()) {
+    dopt.camera = drv::cameraPreset(o.camera_preset);
+    dopt.camera_origin = "--camera-preset " + o.camera_preset;
+    dopt.force_camera = true;
+  } else if (c.camera.intrinsics_given) {
+    dopt.camera = user_cam;
+    dopt.force_camera = c.camera.override_dataset;
+  }
   std::unique_ptr<drv::Dataset> dataset;  // null on a camera run
   if (!camera) {
     auto opened = drv::Dataset::open(o.dataset, dopt);
@@ -257,7 +308,7 @@ int runCommand(const RunOptions& o) {
 
   std::array<std::vector<double>, kStageCount> stage_ms;
   std::vector<double> total_ms;
-  size_t bad_frames = 0, tracked = 0;
+  size_t bad_frames = 0;
   std::string first_error, realtime_report;
   RefineTally refine;
   RunCounters end_counters;  // for the last health message
@@ -270,8 +321,9 @@ int runCommand(const RunOptions& o) {
   auto since_start = [&](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
   };
+  TrackingLog tracking_log;
   auto tally = [&](const FrameResult& r) {
-    tracked += r.tracked;
+    tracking_log.add(r);
     double sum = 0;
     for (int s = 0; s < kStageCount; ++s) {
       // Quality runs on keyframes only: its row is per keyframe.
@@ -370,10 +422,11 @@ int runCommand(const RunOptions& o) {
       trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, frame->stamp_ns});
       traceFrameStages(trace, r, t, 1, seq);
     }
-    spdlog::debug("frame {}: tracked {} inliers {} rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]", frames[k], r.tracked,
-                  r.inliers, r.rms_residual_m * 1000, r.T_world_cam.translation().x(), r.T_world_cam.translation().y(),
-                  r.T_world_cam.translation().z());
-    if (!r.tracked) spdlog::warn("frame {} ({}): tracking lost: {}", frames[k], frame->stamp_ns, r.failure);
+    spdlog::debug("frame {}: {} ({}) inliers {} within noise {:.0f} % rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]{}{}",
+                  frames[k], alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
+                  100 * r.consistent_ratio, r.rms_residual_m * 1000, r.T_world_cam.translation().x(),
+                  r.T_world_cam.translation().y(), r.T_world_cam.translation().z(), r.failure.empty() ? "" : ": ",
+                  r.failure);
     if (r.keyframe && !o.save_quality.empty()) {
       if (auto s = writeKeyframeQuality(o.save_quality, frontend, r.keyframe_id); !s) {
         spdlog::error("{}", s.message());
@@ -430,8 +483,9 @@ int runCommand(const RunOptions& o) {
   std::string summary = "hxmap run summary\n=================\n";
   summary += dataset ? fmt::format("dataset: {} ({} frames)\n", dataset->dir(), dataset->size())
                      : fmt::format("camera: {}\n", camera->name());
-  summary += fmt::format("frames: processed {}, tracked {}, lost {}, unreadable skipped {}, keyframes {}\n",
-                         total_ms.size(), tracked, frontend.lostFrames(), bad_frames, frontend.keyframes());
+  summary += fmt::format("frames: processed {}, unreadable skipped {}, keyframes {}\n", total_ms.size(), bad_frames,
+                         frontend.keyframes());
+  summary += trackingSummary(frontend);
   const auto mem = frontend.map().memory();
   summary +=
       fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",
@@ -539,8 +593,26 @@ int synthCommand(const SynthOptions& o) {
   p.frames = o.frames > 0 ? o.frames : sc.frames;
   p.seed = static_cast<uint64_t>(o.seed >= 0 ? o.seed : sc.seed);
   p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
-  if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect") {
-    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect", p.trajectory);
+  if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect" && p.trajectory != "fast") {
+    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast", p.trajectory);
+    return 2;
+  }
+  if (!o.blackout.empty()) {
+    const size_t colon = o.blackout.find(':');
+    char* end1 = nullptr;
+    char* end2 = nullptr;
+    const std::string a = o.blackout.substr(0, colon), b = colon == std::string::npos ? "" : o.blackout.substr(colon + 1);
+    p.blackout_start_s = std::strtod(a.c_str(), &end1);
+    p.blackout_s = std::strtod(b.c_str(), &end2);
+    if (a.empty() || b.empty() || *end1 != '\0' || *end2 != '\0' || !(p.blackout_start_s >= 0) ||
+        !(p.blackout_s > 0) || !std::isfinite(p.blackout_start_s + p.blackout_s)) {
+      spdlog::error("--blackout: '{}' is not START_S:DURATION_S (seconds, start >= 0, duration > 0)", o.blackout);
+      return 2;
+    }
+  }
+  p.drop_every = o.drop_every;
+  if (p.drop_every == 1) {
+    spdlog::error("--drop-every: 1 would drop every frame (2 drops every other frame)");
     return 2;
   }
   const std::string scene_name = o.scene.empty() ? sc.scene : o.scene;
@@ -566,8 +638,14 @@ int synthCommand(const SynthOptions& o) {
     spdlog::error("{}", status.message());
     return 1;
   }
-  spdlog::info("wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}, scale {}) to {}", p.frames,
-               scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", p.scale, o.out_dir);
+  const drv::TrajectorySpeeds speeds = drv::trajectorySpeeds(drv::syntheticTrajectory(p));
+  spdlog::info(
+      "wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}, scale {}) to {}; camera speed "
+      "peak {:.2f} m/s and {:.0f} deg/s, mean {:.2f} m/s and {:.0f} deg/s",
+      p.frames, scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", p.scale, o.out_dir, speeds.max_linear_mps,
+      speeds.max_angular_dps, speeds.mean_linear_mps, speeds.mean_angular_dps);
+  if (p.blackout_s > 0) spdlog::info("blackout from {:.2f} s for {:.2f} s", p.blackout_start_s, p.blackout_s);
+  if (p.drop_every > 0) spdlog::info("one frame in {} left out of the lists", p.drop_every);
   return 0;
 }
 
@@ -693,6 +771,7 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.tsdf = c.tsdf;
   fp.raycast = c.raycast;
   fp.tracking = c.tracking;
+  fp.relocalization = c.relocalization;
   fp.quality = c.quality;
   fp.quality_enabled = c.quality_enabled;
   fp.implicit = c.refine.implicit;

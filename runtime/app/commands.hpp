@@ -24,6 +24,12 @@ struct RunOptions {
   double burn_ms = 0;        ///< with realtime: inject CPU-burning refinement slices of this many ms
   std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
   bool dds = false;          ///< publish over DDS (also dds.enabled in the configuration)
+  /// Intrinsics by name (fr1, fr2, fr3, kinect) for a dataset that carries
+  /// none; they win over the dataset's own. Empty: none.
+  std::string camera_preset;
+  /// Fuse every frame at its ground-truth pose instead of tracking (to
+  /// measure what tracking costs the map); needs ground truth.
+  bool fuse_ground_truth = false;
 };
 int runCommand(const RunOptions& options);
 
@@ -35,6 +41,8 @@ struct SynthOptions {
   std::string scene;
   double scale = -1;
   bool no_noise = false;
+  std::string blackout;  ///< "START_S:DURATION_S", empty = none
+  int drop_every = 0;
 };
 int synthCommand(const SynthOptions& options);
 

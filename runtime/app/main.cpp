@@ -30,6 +30,10 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--config", run.config, "YAML configuration (default: built-in defaults)");
   run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
   run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames");
+  run_cmd->add_option("--camera-preset", run.camera_preset,
+                      "intrinsics by name for a dataset without its own: fr1, fr2, fr3 (TUM freiburg 1/2/3) or kinect "
+                      "(525, 319.5, 239.5)")
+      ->check(CLI::IsMember({"fr1", "fr2", "fr3", "kinect"}));
   run_cmd->add_option("--trace", run.trace, "write per-frame stage timings as a Chrome/Perfetto trace (JSON)");
   run_cmd->add_flag("--realtime", run.realtime,
                     "play the dataset at its recorded rate through the runtime threads (frames load first)");
@@ -51,7 +55,12 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--config", synth.config, "YAML configuration (synthetic section)");
   synth_cmd->add_option("--frames", synth.frames, "number of frames");
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
-  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep or inspect");
+  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep, inspect or fast (hand-held, jerky)");
+  synth_cmd->add_option("--blackout", synth.blackout,
+                        "START_S:DURATION_S: no depth and black color for that long (the camera keeps moving)");
+  synth_cmd->add_option("--drop-every", synth.drop_every,
+                        "leave every N-th frame out of the lists (2: every other frame dropped)")
+      ->check(CLI::Range(0, 1000));
   synth_cmd->add_option("--scene", synth.scene, "room (default) or quality (known-bad regions for quality validation)");
   synth_cmd->add_option("--scale", synth.scale,
                         "scene and trajectory scaled by this (0.5: the quality room's thin structures as thin against "

@@ -79,6 +79,7 @@ TEST_F(PoseFeedbackLoop, SolveTimeLeavesOutTheSchedulersWaits) {
   FrontendParams p;
   p.quality_enabled = false;
   p.refine_enabled = false;
+  p.feedback.enabled = true;
   p.feedback.image_level = 0;
   Frontend fe(cam_, p);
   fe.setInitialPose(truth_.front().T_world_cam);

@@ -38,7 +38,12 @@ class RealtimeTest : public ::testing::Test {
   const alg::PinholeCamera cam_{160, 160, 79.5, 59.5, 160, 120, {0, 0, 0, 0, 0}};
   std::vector<RgbdFrame> frames_;
   Eigen::Isometry3d T0_;
-  Frontend fe_{cam_, FrontendParams{}};
+  static FrontendParams withFeedback() {
+    FrontendParams p;
+    p.feedback.enabled = true;  // off by default; these tests exercise its thread
+    return p;
+  }
+  Frontend fe_{cam_, withFeedback()};
   RealtimeOptions options_;  // no status line
   std::atomic<bool> stop_{false};
 };
@@ -172,6 +177,7 @@ TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFronten
   FrontendParams p;
   p.refine_enabled = false;
   p.quality_enabled = false;
+  p.feedback.enabled = true;
   // Drifting odometry, so that the window has something to correct.
   p.odometry_bias << 0.0004, -0.0006, 0.0002, 0.0008, 0.0004, -0.0006;
   Frontend fe(cam_, p);

@@ -87,10 +87,12 @@ struct Accumulation {
   NormalEquations eq;
   double sq_sum = 0;
   int inliers = 0;
+  int consistent = 0;  ///< inliers within consistent_sigmas * sigma(z) of the model's plane
   void merge(const Accumulation& o) {
     eq.merge(o.eq);
     sq_sum += o.sq_sum;
     inliers += o.inliers;
+    consistent += o.consistent;
   }
 };
 
@@ -119,6 +121,9 @@ void accumulateBands(const ParallelFor& parallel, Accumulation& acc, const Body&
   });
   for (const auto& p : part) acc.merge(p);
 }
+
+// "37 %" (algorithms/ has no fmt: it builds with OpenCV and Eigen alone).
+std::string percent(double share) { return std::to_string(std::lround(100 * share)) + " %"; }
 
 // Nearest pixel of x in [-0.5, size - 0.5), or -1: floor(x + 0.5) by
 // truncation, no libm call.
@@ -174,6 +179,8 @@ void accumulate(const std::vector<FramePoint>& points, const ModelView& model, c
   const float cx = static_cast<float>(mc.cx), cy = static_cast<float>(mc.cy);
   const int mw = mc.width, mh = mc.height;
   const Eigen::Matrix3f R = T.linear();
+  const float sig_a = static_cast<float>(params.noise_sigma_a_m), sig_b = static_cast<float>(params.noise_sigma_b_per_m);
+  const float k_sig = static_cast<float>(params.consistent_sigmas);
   for (const FramePoint& fp : points) {
     const Eigen::Vector3f p_cam(fp.p[0], fp.p[1], fp.p[2]);
     const Eigen::Vector3f p_ref = T_ref_cam * p_cam;
@@ -200,6 +207,8 @@ void accumulate(const std::vector<FramePoint>& points, const ModelView& model, c
     acc.eq.add(J, fp.conf * cos_n * w_robust, r);
     acc.sq_sum += static_cast<double>(r) * r;
     ++acc.inliers;
+    const float dz = fp.p[2] - 0.4f;
+    acc.consistent += ar <= k_sig * (sig_a + sig_b * dz * dz);
   }
   acc.eq.flush();
 }
@@ -383,29 +392,77 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
                     [&](int c, Accumulation& a) { accumulate(points[c], model[finest], Tf, params, a); });
   }
   last.inliers *= final_stride * final_stride;
+  last.consistent *= final_stride * final_stride;
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum * final_stride * final_stride / last.inliers) : 0.0;
+  result.consistent_ratio = last.inliers > 0 ? static_cast<double>(last.consistent) / last.inliers : 0.0;
   result.information = last.eq.H() * static_cast<double>(final_stride * final_stride);
   Eigen::SelfAdjointEigenSolver<Matrix6d> eig(result.information);
   const double emax = eig.eigenvalues().maxCoeff();
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
   const Eigen::Isometry3d motion = T_init.inverse() * T;
-  if (last.inliers < params.min_inliers ||
-      last.inliers <
-          params.min_inlier_ratio * std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)))) {
+  const int reference_pixels = std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)));
+  const double inlier_ratio = static_cast<double>(last.inliers) / reference_pixels;
+  if (last.inliers < params.min_inliers || inlier_ratio < params.min_inlier_ratio) {
     result.failure = "too few inliers (" + std::to_string(last.inliers) + ")";
-  } else if (result.rms_residual_m > params.max_rms_residual_m) {
-    result.failure = "residual too large (" + std::to_string(result.rms_residual_m * 1000) + " mm rms)";
   } else if (result.min_eigen_ratio < params.min_hessian_eigenvalue_ratio) {
     result.failure = "degenerate geometry (normal equations near singular)";
   } else if (translationNorm(motion) > params.max_motion_translation_m ||
              rotationAngle(motion) * 180.0 / M_PI > params.max_motion_rotation_deg) {
     result.failure = "implausible motion from the prediction";
+  } else if (result.consistent_ratio < params.min_consistent_ratio_lost) {
+    result.failure = "residuals beyond the sensor's noise (" + percent(result.consistent_ratio) + " of " +
+                     std::to_string(last.inliers) + " associations within the gate)";
   } else {
     result.ok = true;
     result.T_world_cam = T;
+    if (result.consistent_ratio < params.min_consistent_ratio) {
+      result.degraded = percent(result.consistent_ratio) + " of " + std::to_string(last.inliers) +
+                        " associations within the noise gate";
+    } else if (inlier_ratio < params.min_inlier_ratio_fused) {
+      result.degraded = percent(inlier_ratio) + " of the view associated";
+    }
   }
   return result;
+}
+
+std::vector<ModelView> frameAsModel(const PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam) {
+  std::vector<ModelView> out;
+  if (frame.levels.empty()) return out;
+  const Eigen::Isometry3f T = T_world_cam.cast<float>();
+  const Eigen::Matrix3f R = T.linear();
+  const int finest = std::clamp(frame.finest, 0, static_cast<int>(frame.levels.size()) - 1);
+  out.resize(frame.levels.size());
+  for (size_t l = static_cast<size_t>(finest); l < frame.levels.size(); ++l) {
+    const FrameLevel& fl = frame.levels[l];
+    ModelView& m = out[l];
+    m.camera = fl.camera;
+    m.T_world_cam = T;
+    m.depth = fl.depth;
+    m.vertex_world.create(fl.vertex.size(), CV_32FC3);
+    m.normal_world.create(fl.normal.size(), CV_32FC3);
+    for (int v = 0; v < fl.vertex.rows; ++v) {
+      const auto* pv = fl.vertex.ptr<cv::Vec3f>(v);
+      const auto* pn = fl.normal.ptr<cv::Vec3f>(v);
+      auto* wv = m.vertex_world.ptr<cv::Vec3f>(v);
+      auto* wn = m.normal_world.ptr<cv::Vec3f>(v);
+      for (int u = 0; u < fl.vertex.cols; ++u) {
+        const bool valid = pv[u][2] > 0 && (pn[u][0] != 0 || pn[u][1] != 0 || pn[u][2] != 0);
+        if (!valid) {
+          wv[u] = cv::Vec3f(0, 0, 0);
+          wn[u] = cv::Vec3f(0, 0, 0);
+          continue;
+        }
+        const Eigen::Vector3f x = T * Eigen::Vector3f(pv[u][0], pv[u][1], pv[u][2]);
+        const Eigen::Vector3f n = R * Eigen::Vector3f(pn[u][0], pn[u][1], pn[u][2]);
+        wv[u] = cv::Vec3f(x.x(), x.y(), x.z());
+        wn[u] = cv::Vec3f(n.x(), n.y(), n.z());
+        ++m.valid_pixels;
+      }
+    }
+  }
+  for (int l = 0; l < finest; ++l) out[static_cast<size_t>(l)] = out[static_cast<size_t>(finest)];
+  return out;
 }
 
 int modelLevel(const TrackingParams& params, int width) {

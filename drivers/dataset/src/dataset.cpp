@@ -20,6 +20,13 @@ namespace fs = std::filesystem;
 
 namespace hxmap::drv {
 
+alg::PinholeCamera cameraPreset(const std::string& name) {
+  if (name == "fr1") return tumCameraPreset(1);
+  if (name == "fr2") return tumCameraPreset(2);
+  if (name == "fr3") return tumCameraPreset(3);
+  return {525.0, 525.0, 319.5, 239.5, 640, 480, {0, 0, 0, 0, 0}};  // kinect: the ROS default
+}
+
 alg::PinholeCamera tumCameraPreset(int freiburg) {
   alg::PinholeCamera c;
   c.width = 640;
@@ -319,12 +326,14 @@ Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
 Status Dataset::finishCamera(const DatasetOptions& options) {
   if (options.camera && (options.force_camera || camera_source_.empty())) {
     camera_ = *options.camera;
-    camera_source_ = "configuration (camera section)";
+    camera_source_ = options.camera_origin;
   }
   if (camera_source_.empty()) {
     return Error{dir_ +
-                 ": the dataset carries no intrinsics (no calibration.yaml, cam_params.json or freiburgN in "
-                 "the folder name); give them in the config's camera section"};
+                 ": the dataset carries no intrinsics: add calibration.yaml to the folder (keys fx, fy, cx, cy, "
+                 "width, height; optional k1 k2 p1 p2 k3, depth_scale), give camera.fx/fy/cx/cy/width/height in "
+                 "a --config file, or name a preset with --camera-preset fr1|fr2|fr3|kinect (a TUM recording's "
+                 "folder name normally says which: rgbd_dataset_freiburgN_...)"};
   }
   if (camera_.width <= 0 || camera_.height <= 0 || !(camera_.fx > 0) || !(camera_.fy > 0)) {
     return Error{fmt::format("{}: invalid intrinsics from {}", dir_, camera_source_)};

@@ -444,6 +444,18 @@ Trajectory syntheticTrajectory(const SyntheticParams& params) {
       const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
       eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
       target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
+    } else if (params.trajectory == "fast") {
+      // Around the table like the orbit, in surges: the angle's rate swings
+      // between -0.24 and 0.84 rad/s (about 1.1 m/s along the circle and as
+      // many degrees per second of yaw), with a hand's shake of a few
+      // millimeters at 3-5 Hz on the eye and the target.
+      const double phi = -2.3 + 0.3 * t + 0.3 * std::sin(1.8 * t);
+      const double r = 1.35 + 0.1 * std::sin(0.9 * t);
+      eye = {0.3 + r * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.15 * std::sin(1.7 * t)};
+      eye += Eigen::Vector3d(0.004 * std::sin(2 * M_PI * 4.3 * t), 0.004 * std::sin(2 * M_PI * 3.7 * t + 1.0),
+                             0.003 * std::sin(2 * M_PI * 5.1 * t + 2.0));
+      target = {0.2 + 0.15 * std::sin(0.8 * t) + 0.012 * std::sin(2 * M_PI * 2.9 * t),
+                0.25 + 0.1 * std::cos(0.6 * t) + 0.012 * std::sin(2 * M_PI * 3.3 * t + 0.5), 0.65};
     } else {
       const double phi = -2.3 + 0.3 * t;  // around the table
       eye = {0.3 + 1.35 * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.12 * std::sin(1.1 * t)};
@@ -463,6 +475,28 @@ Trajectory syntheticTrajectory(const SyntheticParams& params) {
     traj.push_back(p);
   }
   return traj;
+}
+
+TrajectorySpeeds trajectorySpeeds(const Trajectory& trajectory) {
+  TrajectorySpeeds s;
+  size_t n = 0;
+  for (size_t i = 1; i < trajectory.size(); ++i) {
+    const double dt = static_cast<double>(trajectory[i].stamp_ns - trajectory[i - 1].stamp_ns) * 1e-9;
+    if (!(dt > 0)) continue;
+    const Eigen::Isometry3d d = trajectory[i - 1].T_world_cam.inverse() * trajectory[i].T_world_cam;
+    const double v = d.translation().norm() / dt;
+    const double w = Eigen::AngleAxisd(d.linear()).angle() * 180.0 / M_PI / dt;
+    s.max_linear_mps = std::max(s.max_linear_mps, v);
+    s.max_angular_dps = std::max(s.max_angular_dps, w);
+    s.mean_linear_mps += v;
+    s.mean_angular_dps += w;
+    ++n;
+  }
+  if (n > 0) {
+    s.mean_linear_mps /= static_cast<double>(n);
+    s.mean_angular_dps /= static_cast<double>(n);
+  }
+  return s;
 }
 
 RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera& cam,
@@ -554,7 +588,16 @@ Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scen
   std::string rgb_list = "# color images\n# timestamp filename\n";
   std::string depth_list = "# depth maps\n# timestamp filename\n";
   for (int i = 0; i < params.frames; ++i) {
-    const RenderedFrame f = renderFrame(scene, params.camera, traj[i].T_world_cam, params, i, parallel);
+    if (params.drop_every > 0 && i % params.drop_every == params.drop_every - 1) {
+      if (progress) progress(i + 1, params.frames);
+      continue;  // dropped by the "camera": in the ground truth only
+    }
+    RenderedFrame f = renderFrame(scene, params.camera, traj[i].T_world_cam, params, i, parallel);
+    const double t = static_cast<double>(i) / params.fps;
+    if (params.blackout_s > 0 && t >= params.blackout_start_s && t < params.blackout_start_s + params.blackout_s) {
+      f.depth.setTo(0.0f);
+      f.rgb.setTo(cv::Scalar(0, 0, 0));
+    }
     const std::string stamp = formatStampS(traj[i].stamp_ns);
     cv::Mat bgr, depth16;
     cv::cvtColor(f.rgb, bgr, cv::COLOR_RGB2BGR);
@@ -570,12 +613,13 @@ Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scen
   }
   const auto& c = params.camera;
   const std::string calib = fmt::format(
-      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {}, scale {})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: "
+      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {}, scale {}, blackout {} s from {} s, drop every "
+      "{})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: "
       "{}\n"
       "height: {}\ndepth_scale: 5000\n"
       "# the sensor returns no depth where |cos(incidence)| is below this\nsensor_grazing_cos: {}\n",
-      params.seed, params.trajectory, params.noise ? "on" : "off", params.scale, c.fx, c.fy, c.cx, c.cy, c.width,
-      c.height, params.grazing_cos);
+      params.seed, params.trajectory, params.noise ? "on" : "off", params.scale, params.blackout_s,
+      params.blackout_start_s, params.drop_every, c.fx, c.fy, c.cx, c.cy, c.width, c.height, params.grazing_cos);
   for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list},
                                    {"depth.txt", depth_list},
                                    {"groundtruth.txt", formatTumTrajectory(traj)},

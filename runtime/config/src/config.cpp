@@ -108,7 +108,10 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("convergence_rotation_rad", k.convergence_rotation_rad, 0, 1);
   v.number("min_inlier_ratio", k.min_inlier_ratio, 0, 1);
   v.integer("min_inliers", k.min_inliers, 6, 1 << 24);
-  v.number("max_rms_residual_m", k.max_rms_residual_m, 1e-5, 1);
+  v.number("consistent_sigmas", k.consistent_sigmas, 0.5, 100);
+  v.number("min_consistent_ratio", k.min_consistent_ratio, 0, 1);
+  v.number("min_consistent_ratio_lost", k.min_consistent_ratio_lost, 0, 1);
+  v.number("min_inlier_ratio_fused", k.min_inlier_ratio_fused, 0, 1);
   v.number("min_hessian_eigenvalue_ratio", k.min_hessian_eigenvalue_ratio, 0, 1);
   v.number("max_motion_translation_m", k.max_motion_translation_m, 0.001, 10);
   v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);
@@ -118,6 +121,21 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("keyframe_baseline_ratio", k.keyframe_baseline_ratio, 0, 10);
   v.number("keyframe_rotation_deg", k.keyframe_rotation_deg, 0, 180);
   v.number("keyframe_interval_s", k.keyframe_interval_s, 0, 3600);
+
+  auto& l = c.relocalization;
+  v.section("relocalization");
+  v.boolean("enabled", l.enabled);
+  v.integer("features", l.features, 50, 10000);
+  v.integer("fast_threshold", l.fast_threshold, 1, 255);
+  v.integer("max_keyframes", l.max_keyframes, 1, 100000);
+  v.number("ratio_test", l.ratio_test, 0.1, 1);
+  v.integer("min_matches", l.min_matches, 4, 10000);
+  v.integer("min_pnp_inliers", l.min_pnp_inliers, 4, 10000);
+  v.number("pnp_reprojection_px", l.pnp_reprojection_px, 0.1, 100);
+  v.integer("pnp_iterations", l.pnp_iterations, 1, 100000);
+  v.integer("candidates", l.candidates, 0, 100000);
+  v.number("max_icp_correction_m", l.max_icp_correction_m, 0.001, 10);
+  v.number("max_icp_correction_deg", l.max_icp_correction_deg, 0.01, 180);
 
   auto& q = c.quality;
   v.section("quality");
@@ -227,7 +245,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("frames", c.synthetic.frames, 1, 100000);
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);
   v.choice("scene", c.synthetic.scene, {"room", "quality"});
-  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect"});
+  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast"});
   v.number("scale", c.synthetic.scale, 0.05, 20);
   v.boolean("noise", c.synthetic.noise);
   v.number("noise_scale", c.synthetic.noise_scale, 0, 100);
@@ -467,6 +485,10 @@ Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::s
   Loader loader(root, source);
   visit(config, loader);
   loader.checkUnknown();
+  {
+    const YAML::Node& r = root;
+    config.camera.intrinsics_given = r && r.IsMap() && r["camera"] && r["camera"].IsMap() && r["camera"]["fx"];
+  }
   if (!loader.errors().empty()) {
     return Error{fmt::format("{} problem(s) in the configuration:\n{}", loader.errors().size(),
                              fmt::join(loader.errors(), "\n"))};

@@ -35,7 +35,16 @@ void keepHeapBetweenFrames() {
 }
 
 Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& params, ParallelFor parallel)
-    : camera_(camera), params_(params), parallel_(std::move(parallel)), map_(params.tsdf), quality_(params.quality) {}
+    : camera_(camera),
+      params_(params),
+      parallel_(std::move(parallel)),
+      map_(params.tsdf),
+      keyframe_db_(params.relocalization),
+      quality_(params.quality) {
+  // One noise model for preprocessing and tracking's gates.
+  params_.tracking.noise_sigma_a_m = params_.preprocess.noise_sigma_a_m;
+  params_.tracking.noise_sigma_b_per_m = params_.preprocess.noise_sigma_b_per_m;
+}
 
 void Frontend::warmUp() {
   FrontendParams p = params_;
@@ -74,33 +83,57 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
     StageTimer t(r.stage_ms[kPreprocess]);
     pre = alg::preprocessFrame(frame, camera_, params_.preprocess, parallel_);
   }
-  const int min_valid = std::max(params_.tracking.min_inliers, camera_.width * camera_.height / 100);
 
-  // 2. Track against the model rendered at the last pose (constant velocity guess).
-  Eigen::Isometry3d T = T_initial_;
+  // 2. Track: against the model, else frame to frame, else lost.
+  alg::TrackingDecision decision;
   alg::IcpResult icp;
-  if (pre.valid_pixels < min_valid) {
-    r.failure = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels)";
-  } else if (!initialized_) {
-    r.tracked = true;
+  Eigen::Isometry3d T = T_initial_;
+  if (!initialized_) {
+    if (pre.valid_pixels < minValidPixels()) {
+      decision.reason = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels) to start the map";
+      ++lost_frames_;
+      r.failure = decision.reason;
+      r.T_world_cam = T_initial_;
+      trajectory_.push_back({frame.stamp_ns, r.T_world_cam});
+      return r;
+    }
+    decision = state_machine_.start();
   } else {
     StageTimer t(r.stage_ms[kTrack]);
-    icp = alg::trackPointToPlane(pre, model_, params_.tracking.constant_velocity ? T_last_ * velocity_ : T_last_,
-                                 params_.tracking, alg::PhotometricReference{&last_frame_, T_last_}, parallel_);
-    r.tracked = icp.ok;
-    r.failure = icp.failure;
-    r.inliers = icp.inliers;
-    r.rms_residual_m = icp.rms_residual_m;
-    T = icp.T_world_cam;
-    if (!params_.odometry_bias.isZero(0)) T = T * alg::expSE3(params_.odometry_bias);
+    decision = track(pre, icp, T);
   }
+  r.state = decision.state;
+  r.pose_source = decision.source;
+  r.tracked = decision.state != alg::TrackingState::kLost;
+  r.failure = decision.reason;
+  r.inliers = icp.inliers;
+  r.rms_residual_m = icp.rms_residual_m;
+  r.consistent_ratio = icp.consistent_ratio;
 
   if (!r.tracked) {
-    // Keep the map and the last good pose; restart motion from rest.
+    // Keep the map and the last pose; restart motion from rest.
     ++lost_frames_;
     velocity_.setIdentity();
-    r.T_world_cam = initialized_ ? T_last_ : T_initial_;
+    r.T_world_cam = T_last_;
+    if (!lost_since_) lost_since_ = trajectory_.size();
     trajectory_.push_back({frame.stamp_ns, r.T_world_cam});
+    return r;
+  }
+  if (lost_since_) fillLostPoses(frame.stamp_ns, T);
+  if (!params_.odometry_bias.isZero(0)) T = T * alg::expSE3(params_.odometry_bias);
+  if (!decision.fuse) {
+    // Follow the camera without fusing: the next frame is tracked from
+    // here, against the model rendered here and this frame.
+    velocity_ = T_last_.inverse() * T;
+    T_last_ = T;
+    previous_frame_ = std::move(pre);
+    T_previous_ = T;
+    r.T_world_cam = T;
+    if (decision.source != alg::PoseSource::kRelocalization) {  // relocalization rendered it already
+      StageTimer t(r.stage_ms[kRaycast]);
+      renderModel(previous_frame_, T);
+    }
+    trajectory_.push_back({frame.stamp_ns, T});
     return r;
   }
 
@@ -114,6 +147,8 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   velocity_ = initialized_ ? T_last_.inverse() * T : Eigen::Isometry3d::Identity();
   T_last_ = T;
   last_frame_ = std::move(pre);
+  previous_frame_ = last_frame_;  // headers: the same buffers
+  T_previous_ = T;
   r.integrated = true;
   r.T_world_cam = T;
 
@@ -121,7 +156,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   //    predicts where each ray meets the surface).
   {
     StageTimer t(r.stage_ms[kRaycast]);
-    renderModel(last_frame_);
+    renderModel(last_frame_, T_last_);
   }
 
   // 5. Keyframes by motion and time.
@@ -133,6 +168,7 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
       keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
     T_last_kf_ = T;
     last_kf_ns_ = frame.stamp_ns;
+    if (params_.relocalization.enabled) addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
     if (params_.tracking.keyframe_baseline_ratio > 0 && !last_frame_.levels.empty()) {
       last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
     }
@@ -149,6 +185,148 @@ FrameResult Frontend::process(const RgbdFrame& frame) {
   initialized_ = true;
   trajectory_.push_back({frame.stamp_ns, T});
   return r;
+}
+
+void Frontend::fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found) {
+  // DESIGN: a lost frame reports the last pose while it is lost (nothing
+  // better is known then); once tracking is back, the trajectory's lost
+  // frames get poses interpolated by time between the poses either side
+  // (linear in translation, spherical in rotation). Offline outputs (the
+  // trajectory file) carry these; live outputs have already published.
+  const size_t first = *lost_since_;
+  lost_since_.reset();
+  if (first == 0 || first > trajectory_.size()) return;
+  const StampedPose& a = trajectory_[first - 1];
+  const Eigen::Quaterniond qa(a.T_world_cam.linear()), qb(T_found.linear());
+  const double span = static_cast<double>(stamp_ns - a.stamp_ns);
+  for (size_t i = first; i < trajectory_.size(); ++i) {
+    const double s = span > 0 ? std::clamp(static_cast<double>(trajectory_[i].stamp_ns - a.stamp_ns) / span, 0.0, 1.0) : 1.0;
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = qa.slerp(s, qb).toRotationMatrix();
+    T.translation() = (1 - s) * a.T_world_cam.translation() + s * T_found.translation();
+    trajectory_[i].T_world_cam = T;
+    ++tracking_counters_.interpolated_poses;
+  }
+}
+
+int Frontend::minValidPixels() const {
+  return std::max(params_.tracking.min_inliers, camera_.width * camera_.height / 100);
+}
+
+namespace {
+// Better of two tracking results: usable over failed, fusable over degraded,
+// then the larger share of associations within the noise gate.
+bool betterTrack(const alg::IcpResult& a, const alg::IcpResult& b) {
+  if (a.ok != b.ok) return a.ok;
+  if (a.ok && a.degraded.empty() != b.degraded.empty()) return a.degraded.empty();
+  return a.consistent_ratio * a.inliers > b.consistent_ratio * b.inliers;
+}
+}  // namespace
+
+alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T) {
+  alg::TrackingAttempts attempts;
+  attempts.enough_depth = pre.valid_pixels >= minValidPixels();
+  if (!attempts.enough_depth) {
+    alg::TrackingDecision d = state_machine_.update(attempts);
+    d.reason = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels)";
+    return d;
+  }
+  const alg::PhotometricReference reference{&previous_frame_, T_previous_};
+  // From the last pose; when that is not good enough, from the constant
+  // velocity prediction too, keeping the better.
+  icp = alg::trackPointToPlane(pre, model_, T_last_, params_.tracking, reference, parallel_);
+  if (params_.tracking.constant_velocity && (!icp.ok || !icp.degraded.empty()) &&
+      state_machine_.state() != alg::TrackingState::kLost && !velocity_.isApprox(Eigen::Isometry3d::Identity())) {
+    alg::IcpResult cv = alg::trackPointToPlane(pre, model_, T_last_ * velocity_, params_.tracking, reference, parallel_);
+    ++tracking_counters_.velocity_retries;
+    if (betterTrack(cv, icp)) {
+      icp = std::move(cv);
+      ++tracking_counters_.velocity_wins;
+    }
+  }
+  attempts.model = &icp;
+  alg::IcpResult odometry;
+  if (!icp.ok && state_machine_.state() != alg::TrackingState::kLost && !previous_frame_.levels.empty()) {
+    const std::vector<alg::ModelView> previous = alg::frameAsModel(previous_frame_, T_previous_);
+    const Eigen::Isometry3d guess = params_.tracking.constant_velocity ? T_last_ * velocity_ : T_last_;
+    odometry = alg::trackPointToPlane(pre, previous, guess, params_.tracking, reference, parallel_);
+    attempts.odometry = &odometry;
+  }
+  alg::IcpResult relocalized;
+  std::string relocalization_failure;
+  const bool model_failed = !icp.ok || (state_machine_.state() == alg::TrackingState::kLost && !icp.degraded.empty());
+  if (model_failed && !odometry.ok && params_.relocalization.enabled) {
+    if (relocalize(pre, relocalized, relocalization_failure)) attempts.relocalization = &relocalized;
+  }
+  alg::TrackingDecision d = state_machine_.update(attempts);
+  if (d.state == alg::TrackingState::kLost && !relocalization_failure.empty()) {
+    d.reason += "; relocalization: " + relocalization_failure;
+  }
+  if (d.source == alg::PoseSource::kRelocalization) {
+    T = relocalized.T_world_cam;
+    icp = relocalized;
+  }
+  if (d.source == alg::PoseSource::kModel) T = icp.T_world_cam;
+  if (d.source == alg::PoseSource::kOdometry) {
+    T = odometry.T_world_cam;
+    icp = odometry;
+  }
+  return d;
+}
+
+void Frontend::addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
+                                     const Eigen::Isometry3d& T_world_cam) {
+  if (!frame.has_color || frame.intensity.empty()) return;  // no texture to describe
+  const auto t0 = std::chrono::steady_clock::now();
+  cv::Mat gray;
+  frame.intensity.convertTo(gray, CV_8U, 255.0);
+  keyframe_db_.add(id, alg::extractFeatures(gray, frame.depth_m, camera_, params_.relocalization), T_world_cam);
+  tracking_counters_.keyframe_features_ms +=
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+bool Frontend::relocalize(const alg::PreprocessedFrame& pre, alg::IcpResult& verified, std::string& why) {
+  if (keyframe_db_.size() == 0) {
+    why = "no keyframes in the database";
+    return false;
+  }
+  if (!pre.has_color || pre.intensity.empty()) {
+    why = "no color to match";
+    return false;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  struct Timer {
+    std::chrono::steady_clock::time_point t0;
+    double& total;
+    ~Timer() { total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(); }
+  } timer{t0, tracking_counters_.relocalization_ms};
+  ++tracking_counters_.relocalization_attempts;
+  cv::Mat gray;
+  pre.intensity.convertTo(gray, CV_8U, 255.0);
+  const alg::FrameFeatures features = alg::extractFeatures(gray, pre.depth_m, camera_, params_.relocalization, false);
+  const std::vector<alg::RelocalizationCandidate> candidates =
+      keyframe_db_.query(features, camera_, T_last_, tracking_counters_.relocalization_attempts - 1, &why);
+  const alg::RelocalizationParams& rp = params_.relocalization;
+  // The ICP check: against the model rendered at the candidate, without the
+  // photometric term (the previous frame is not near this pose).
+  for (size_t i = 0; i < candidates.size() && i < 3; ++i) {
+    const alg::RelocalizationCandidate& c = candidates[i];
+    renderModel(pre, c.T_world_cam);
+    alg::IcpResult r = alg::trackPointToPlane(pre, model_, c.T_world_cam, params_.tracking, {}, parallel_);
+    const Eigen::Isometry3d moved = c.T_world_cam.inverse() * r.T_world_cam;
+    const bool agrees = alg::translationNorm(moved) <= rp.max_icp_correction_m &&
+                        alg::rotationAngle(moved) * 180.0 / M_PI <= rp.max_icp_correction_deg;
+    if (r.ok && r.degraded.empty() && agrees) {
+      verified = std::move(r);
+      return true;
+    }
+    ++tracking_counters_.relocalization_rejected;
+    why = "keyframe " + std::to_string(c.keyframe_id) + " gave a pose (" + std::to_string(c.pnp_inliers) +
+          " PnP inliers) that the model did not confirm (" +
+          (r.ok ? (agrees ? r.degraded : std::string("ICP moved it too far")) : r.failure) + ")";
+  }
+  if (!candidates.empty()) renderModel(previous_frame_.levels.empty() ? pre : previous_frame_, T_last_);
+  return false;
 }
 
 void Frontend::keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::IcpResult* icp,
@@ -211,10 +389,13 @@ bool Frontend::applyKeyframeCorrection(const KeyframeCorrection& c) {
   trajectory_[index].T_world_cam = c.T_world_cam;
   ++feedback_counters_.corrections;
   if (std::next(it) == kept_.end()) {
-    // The newest keyframe: the live pose was tracked from it.
+    // The newest keyframe: the live pose was tracked from it, and so was
+    // the previous frame (the photometric reference).
     T_last_ = delta * T_last_;
+    T_previous_ = delta * T_previous_;
     T_last_kf_ = c.T_world_cam;
   }
+  keyframe_db_.updatePose(c.keyframe_id, c.T_world_cam);
   for (auto& k : keyframe_images_) {
     if (k.id == c.keyframe_id) k.T_world_cam = c.T_world_cam.cast<float>();
   }
@@ -536,7 +717,7 @@ alg::PatchStats Frontend::applyPatch(const alg::TsdfPatch& patch) {
   return alg::applyPatch(map_, patch);
 }
 
-void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
+void Frontend::renderModel(const alg::PreprocessedFrame& fused, const Eigen::Isometry3d& T_world_cam) {
   const int levels = static_cast<int>(fused.levels.size());
   // The model is raycast at pyramid level `model_level` (the fused frame's
   // depth at that level as the hint); finer tracking levels associate into
@@ -568,7 +749,7 @@ void Frontend::renderModel(const alg::PreprocessedFrame& fused) {
   }
   model_.clear();
   model_.push_back(
-      alg::raycast(map_, camera_.level(model_level), T_last_.cast<float>(), params_.raycast, false, parallel_, hint));
+      alg::raycast(map_, camera_.level(model_level), T_world_cam.cast<float>(), params_.raycast, false, parallel_, hint));
   for (int l = 1; l <= model_level && l < levels; ++l) model_.push_back(model_.back());
   while (static_cast<int>(model_.size()) < levels) model_.push_back(alg::subsampleView(model_.back()));
 }

@@ -51,6 +51,27 @@ class BadInput : public ::testing::Test {
   fs::path rgb0_, depth0_;
 };
 
+TEST_F(BadInput, ATumFolderWithoutIntrinsicsIsAnErrorThatSaysWhatToAdd) {
+  // A TUM-layout folder without calibration.yaml, whose name names no
+  // freiburg preset (a renamed copy of a recording): no silent default.
+  fs::remove(fs::path(dir_) / "calibration.yaml");
+  auto d = Dataset::open(dir_, {});
+  ASSERT_FALSE(d);
+  EXPECT_NE(d.message().find(dir_), std::string::npos) << d.message();
+  EXPECT_NE(d.message().find("calibration.yaml"), std::string::npos) << d.message();
+  EXPECT_NE(d.message().find("--camera-preset"), std::string::npos) << d.message();
+  // A named preset (as `--camera-preset kinect` passes it) opens it.
+  DatasetOptions o;
+  o.camera = cameraPreset("kinect");
+  o.camera_origin = "--camera-preset kinect";
+  o.force_camera = true;
+  auto with_preset = Dataset::open(dir_, o);
+  ASSERT_TRUE(with_preset) << with_preset.message();
+  EXPECT_DOUBLE_EQ((*with_preset)->camera().fx, 525.0);
+  EXPECT_EQ((*with_preset)->cameraSource(), "--camera-preset kinect");
+  EXPECT_DOUBLE_EQ(cameraPreset("fr1").fx, 517.3);
+}
+
 TEST_F(BadInput, TheUntouchedSequenceLoads) {
   auto f = loadFirst();
   ASSERT_TRUE(f) << f.message();

@@ -76,7 +76,7 @@ TEST_F(IcpTest, PhotometricTermAloneRecoversPerturbation) {
   TrackingParams tp;
   tp.iterations_finest = 15;
   tp.photometric_scale_m = 100.0;
-  tp.max_rms_residual_m = 1.0;
+  tp.min_consistent_ratio_lost = 0.0;
   const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp, {&ref, T_ref});
   const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
   EXPECT_LT(translationNorm(E), 0.002) << "translation error (m)";

@@ -3,8 +3,10 @@
 // with projective association into the model view, distance gate tau_d,
 // normal-angle gate tau_n, Huber loss rho, confidence weights w(p), and
 // Gauss-Newton coarse to fine over the frame's pyramid. Failure (too few
-// inliers, large residual, degenerate normal equations, implausible motion)
-// is reported, never hidden: the caller keeps the map unchanged then.
+// inliers, residuals beyond the sensor's noise, degenerate normal equations,
+// implausible motion) is reported, never hidden: the caller keeps the map
+// unchanged then. Between success and failure lies a degraded result: a pose
+// good enough to follow the camera, not good enough to fuse.
 #pragma once
 
 #include <string>
@@ -27,6 +29,12 @@ struct IcpResult {
   int inliers = 0;
   int model_pixels = 0;  ///< valid model pixels at level 0
   double rms_residual_m = 0;
+  /// Share of the finest level's associations whose point-to-plane residual
+  /// lies within TrackingParams::consistent_sigmas * sigma(z) of the model.
+  double consistent_ratio = 0;
+  /// Why the pose, although usable (ok), is not good enough to fuse; empty
+  /// when it is.
+  std::string degraded;
   double min_eigen_ratio = 0;
   int iterations = 0;
   Matrix6d information = Matrix6d::Zero();  ///< J^T W J at the solution (level 0)
@@ -49,6 +57,11 @@ struct PhotometricReference {
 IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<ModelView>& model,
                             const Eigen::Isometry3d& T_init, const TrackingParams& params,
                             const PhotometricReference& reference = {}, const ParallelFor& parallel = serialFor);
+
+/// A frame as the model to track the next frame against (frame-to-frame
+/// odometry): its vertex and normal maps at `T_world_cam`, level by level
+/// from its finest preprocessed level (finer entries repeat that one).
+std::vector<ModelView> frameAsModel(const PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
 
 /// The pyramid level the model is raycast at for an image `width` pixels
 /// wide (params.model_level, or the automatic choice when it is negative).

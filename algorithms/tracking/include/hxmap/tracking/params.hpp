@@ -60,7 +60,22 @@ struct TrackingParams {
   /// Failure detection.
   double min_inlier_ratio = 0.15;  ///< of the valid model pixels
   int min_inliers = 800;
-  double max_rms_residual_m = 0.02;
+  /// Residual gates from the sensor's noise model, not a fixed distance:
+  /// an association is consistent when its point-to-plane residual lies
+  /// within consistent_sigmas * sigma(z) at the point's depth z. A frame is
+  /// fused when at least min_consistent_ratio of its associations are
+  /// consistent, still followed (degraded: the pose moves, the map does not)
+  /// down to min_consistent_ratio_lost, and failed below that.
+  double consistent_sigmas = 3.0;
+  double min_consistent_ratio = 0.5;
+  double min_consistent_ratio_lost = 0.2;
+  /// A frame that associates less than this share of the view is followed,
+  /// not fused (the model it met is too small a part of what it sees).
+  double min_inlier_ratio_fused = 0.3;
+  /// The sensor's noise model sigma(z) = a + b (z - 0.4)^2; the frontend
+  /// sets it from the preprocessing's (PreprocessParams), one model for both.
+  double noise_sigma_a_m = 0.0012;
+  double noise_sigma_b_per_m = 0.0019;
   double min_hessian_eigenvalue_ratio = 1e-5;  ///< smallest/largest eigenvalue of the normal equations
   double max_motion_translation_m = 0.3;       ///< per frame, larger is a failure
   double max_motion_rotation_deg = 30.0;

@@ -38,6 +38,7 @@ struct DatasetOptions {
   /// overrides the dataset's own.
   std::optional<alg::PinholeCamera> camera;
   bool force_camera = false;
+  std::string camera_origin = "configuration (camera section)";  ///< where `camera` came from, for the log
   /// Depth pixels per meter; 0 means the dataset's own (TUM 5000, Replica 6553.5).
   double depth_scale = 0.0;
 };
@@ -95,6 +96,9 @@ class Dataset {
 
 /// The published TUM RGB-D intrinsics of freiburg 1, 2 or 3.
 alg::PinholeCamera tumCameraPreset(int freiburg);
+/// By name: "fr1", "fr2", "fr3" (tumCameraPreset) or "kinect" (525, 525,
+/// 319.5, 239.5 at 640x480, no distortion: the ROS default).
+alg::PinholeCamera cameraPreset(const std::string& name);
 
 /// Reads a whole file; error names the path.
 Expected<std::string> readTextFile(const std::string& path);

@@ -27,10 +27,19 @@ struct SyntheticParams {
   int frames = 150;
   double fps = 30.0;
   uint64_t seed = 1;
-  /// "orbit" (around the table), "sweep" (along a wall) or "inspect" (along
+  /// "orbit" (around the table), "sweep" (along a wall), "inspect" (along
   /// the back wall and back, rising once to glance over a shelf; made for
-  /// SyntheticScene::qualityRoom).
+  /// SyntheticScene::qualityRoom) or "fast" (hand-held around the table:
+  /// surges to about 1.2 m/s and 50 deg/s with a hand's shake on top).
   std::string trajectory = "orbit";
+  /// Frames from blackout_start_s for blackout_s seconds have no valid
+  /// depth and black color (a covered lens, a sensor restart); the ground
+  /// truth goes on. blackout_s 0: none.
+  double blackout_start_s = 0.0, blackout_s = 0.0;
+  /// Every drop_every-th frame (the 2nd, 4th, ... for 2) is rendered into
+  /// the ground truth but left out of rgb.txt and depth.txt, as a camera
+  /// that drops frames. 0: none.
+  int drop_every = 0;
   /// Camera positions (and look-at targets) scaled about the origin, for a
   /// scene scaled the same way (SyntheticScene::scaled).
   double scale = 1.0;
@@ -99,6 +108,13 @@ class SyntheticScene {
 
 /// Smooth camera trajectory (camera-to-world, stamps from fps).
 Trajectory syntheticTrajectory(const SyntheticParams& params);
+
+/// Peak linear (m/s) and angular (deg/s) speed of a trajectory, from
+/// consecutive poses.
+struct TrajectorySpeeds {
+  double max_linear_mps = 0, max_angular_dps = 0, mean_linear_mps = 0, mean_angular_dps = 0;
+};
+TrajectorySpeeds trajectorySpeeds(const Trajectory& trajectory);
 
 struct RenderedFrame {
   cv::Mat rgb;         ///< CV_8UC3, RGB

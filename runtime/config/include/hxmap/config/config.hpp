@@ -11,6 +11,7 @@
 #include "hxmap/implicit/params.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/quality/params.hpp"
+#include "hxmap/relocalization/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
 
@@ -24,6 +25,9 @@ struct CameraConfig {
   int width = 640, height = 480;
   double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;
   double depth_scale = 0.0;  ///< depth pixels per meter; 0 = the dataset's own
+  /// The configuration file gave intrinsics (camera.fx): only then do they
+  /// stand in for a dataset that carries none (never a silent default).
+  bool intrinsics_given = false;
 };
 
 struct DatasetConfig {
@@ -126,6 +130,7 @@ struct HxmapConfig {
   alg::RaycastParams raycast;
   alg::MeshParams mesh;
   alg::TrackingParams tracking;
+  alg::RelocalizationParams relocalization;
   bool quality_enabled = true;
   alg::QualityParams quality;
   RefineConfig refine;

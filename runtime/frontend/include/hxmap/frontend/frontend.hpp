@@ -7,6 +7,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <shared_mutex>
 #include <string>
 #include <unordered_map>
@@ -20,7 +21,9 @@
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
+#include "hxmap/relocalization/keyframe_database.hpp"
 #include "hxmap/tracking/icp.hpp"
+#include "hxmap/tracking/state.hpp"
 #include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/patch.hpp"
 #include "hxmap/tsdf/raycast.hpp"
@@ -33,6 +36,9 @@ struct FrontendParams {
   alg::TsdfParams tsdf;
   alg::RaycastParams raycast;
   alg::TrackingParams tracking;
+  /// The keyframe database (ORB features of every keyframe) and
+  /// relocalization against it when tracking is lost.
+  alg::RelocalizationParams relocalization;
   alg::QualityParams quality;
   bool quality_enabled = true;  ///< score map regions on keyframes (paper 3.2)
   alg::ImplicitParams implicit;
@@ -100,7 +106,9 @@ inline const char* stageName(int s) {
 struct FrameResult {
   int64_t stamp_ns = 0;
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
-  bool tracked = false;     ///< pose from ICP (or the first frame)
+  bool tracked = false;     ///< the frame has a pose (tracked or degraded; the first frame)
+  alg::TrackingState state = alg::TrackingState::kLost;
+  alg::PoseSource pose_source = alg::PoseSource::kNone;
   bool integrated = false;  ///< the frame was fused into the map
   bool keyframe = false;
   uint32_t keyframe_id = 0;  ///< when keyframe: its id (0, 1, ...)
@@ -108,6 +116,7 @@ struct FrameResult {
   std::string failure;       ///< why the frame was not tracked or not fused
   int inliers = 0;
   double rms_residual_m = 0;
+  double consistent_ratio = 0;  ///< share of associations within the noise gate
   std::array<double, kStageCount> stage_ms{};
 };
 
@@ -131,6 +140,18 @@ struct FeedbackCounters {
   uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
   uint64_t reintegrations_pending = 0;
   double reintegrate_ms = 0;  ///< total
+};
+
+/// How tracking found its poses, summed over a run.
+struct TrackingCounters {
+  uint64_t velocity_retries = 0;  ///< frames tracked a second time from the constant-velocity guess
+  uint64_t velocity_wins = 0;     ///< ... where that guess gave the better result
+  uint64_t relocalization_attempts = 0;  ///< lost frames matched against the keyframe database
+  uint64_t relocalization_rejected = 0;  ///< PnP candidates the ICP check refused
+  double relocalization_ms = 0;          ///< total over the attempts
+  double keyframe_features_ms = 0;       ///< total ORB extraction for the database
+  uint64_t interpolated_poses = 0;       ///< lost frames given poses between the ones either side, once found again
+  size_t database_keyframes = 0, database_bytes = 0;
 };
 
 /// Process-wide: large buffers come from the heap and heap memory is kept
@@ -219,9 +240,18 @@ class Frontend {
   const alg::TsdfMap& map() const { return map_; }
   const alg::PinholeCamera& camera() const { return camera_; }
   const FrontendParams& params() const { return params_; }
-  /// Every processed frame's pose (lost frames carry the last good pose).
+  /// Every processed frame's pose (lost frames carry the last good pose
+  /// until tracking is back, then poses interpolated in time).
   const Trajectory& trajectory() const { return trajectory_; }
   size_t lostFrames() const { return lost_frames_; }
+  const alg::TrackingCounts& trackingCounts() const { return state_machine_.counts(); }
+  TrackingCounters trackingCounters() const {
+    TrackingCounters c = tracking_counters_;
+    c.database_keyframes = keyframe_db_.size();
+    c.database_bytes = keyframe_db_.bytes();
+    return c;
+  }
+  const alg::KeyframeDatabase& keyframeDatabase() const { return keyframe_db_; }
   size_t keyframes() const { return keyframes_; }
 
   /// Quality of the map's regions (paper 3.2), updated on each keyframe.
@@ -235,7 +265,20 @@ class Frontend {
   const Eigen::Isometry3d& lastPose() const { return T_last_; }
 
  private:
-  void renderModel(const alg::PreprocessedFrame& fused);
+  /// Raycasts model_ at `T_world_cam`, with `frame`'s depth (the frame
+  /// just tracked there) as the hint.
+  void renderModel(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
+  int minValidPixels() const;
+  void fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found);
+  /// Lost: the frame matched against the keyframe database; a PnP pose is
+  /// taken only when ICP against the model rendered there confirms it
+  /// within the noise gates and close to it. On success model_ is the
+  /// model at the verified pose.
+  bool relocalize(const alg::PreprocessedFrame& pre, alg::IcpResult& verified, std::string& why);
+  void addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
+  /// Step 2 of process(): the decision, the result that gave the pose (or
+  /// the model's failed one) and the pose.
+  alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T);
   void scoreKeyframe(FrameResult& r);
   void keepKeyframeImages(uint32_t id);
   void makeRefineJobs(uint32_t keyframe_id);
@@ -247,7 +290,15 @@ class Frontend {
   ParallelFor parallel_;
   alg::TsdfMap map_;
   std::vector<alg::ModelView> model_;  ///< model pyramid rendered at T_last_
-  alg::PreprocessedFrame last_frame_;  ///< the last tracked frame (photometric reference)
+  alg::PreprocessedFrame last_frame_;  ///< the last fused frame
+  /// The last frame with a pose (fused or only followed): the photometric
+  /// reference and the frame-to-frame fallback's model.
+  alg::PreprocessedFrame previous_frame_;
+  Eigen::Isometry3d T_previous_ = Eigen::Isometry3d::Identity();
+  alg::TrackingStateMachine state_machine_;
+  TrackingCounters tracking_counters_;
+  alg::KeyframeDatabase keyframe_db_;
+  std::optional<size_t> lost_since_;  ///< trajectory index of the first frame of the current loss
   bool initialized_ = false;
   Eigen::Isometry3d T_initial_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d T_last_ = Eigen::Isometry3d::Identity();

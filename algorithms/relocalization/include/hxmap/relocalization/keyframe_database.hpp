@@ -1,0 +1,81 @@
+// The keyframe database: per keyframe, ORB features with the 3D points
+// their depth gives, for relocalization (a frame matched against the kept
+// keyframes, its pose recovered with PnP + RANSAC) and, later, loop
+// closure (the same matching against keyframes far back in time). Bounded:
+// past max_keyframes, the keyframe nearest another kept one goes.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "hxmap/geometry/camera.hpp"
+#include "hxmap/relocalization/params.hpp"
+
+namespace hxmap::alg {
+
+
+/// An image's ORB features with depth: keypoints, descriptors (CV_8U, 32
+/// bytes per row) and camera-frame points (z > 0 where depth was valid;
+/// features without depth are dropped).
+struct FrameFeatures {
+  std::vector<cv::Point2f> pixels;
+  cv::Mat descriptors;
+  std::vector<Eigen::Vector3f> points_cam;
+};
+
+/// ORB on an 8-bit gray image; depth (CV_32F meters, same size) backs each
+/// feature with a 3D point, features without valid depth are left out
+/// when `require_depth`.
+FrameFeatures extractFeatures(const cv::Mat& gray8, const cv::Mat& depth_m, const PinholeCamera& camera,
+                              const RelocalizationParams& params, bool require_depth = true);
+
+/// What relocalization found for a frame.
+struct RelocalizationCandidate {
+  uint32_t keyframe_id = 0;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  int matches = 0;       ///< descriptor matches with that keyframe
+  int pnp_inliers = 0;   ///< RANSAC consensus
+};
+
+class KeyframeDatabase {
+ public:
+  explicit KeyframeDatabase(const RelocalizationParams& params = {}) : params_(params) {}
+
+  /// Adds a keyframe (its features and pose; points go to the world).
+  void add(uint32_t id, const FrameFeatures& features, const Eigen::Isometry3d& T_world_cam);
+  /// A keyframe's pose moved (pose feedback, loop closure): its points move
+  /// with it. False when the keyframe is not kept.
+  bool updatePose(uint32_t id, const Eigen::Isometry3d& T_world_cam);
+
+  /// Candidate poses for a frame, best first (most PnP inliers); empty when
+  /// no keyframe gives min_pnp_inliers. `why` (optional) receives the
+  /// reason when empty.
+  /// `near` ranks the keyframes nearest it first; `round` (the count of
+  /// attempts so far) picks which of the rest this attempt matches.
+  std::vector<RelocalizationCandidate> query(const FrameFeatures& frame, const PinholeCamera& camera,
+                                             const Eigen::Isometry3d& near, uint64_t round,
+                                             std::string* why = nullptr) const;
+
+  size_t size() const { return keyframes_.size(); }
+  size_t bytes() const;
+  const RelocalizationParams& params() const { return params_; }
+
+ private:
+  struct Entry {
+    uint32_t id = 0;
+    Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+    cv::Mat descriptors;
+    std::vector<Eigen::Vector3f> points_cam;
+  };
+  void evictOne();
+
+  RelocalizationParams params_;
+  std::vector<Entry> keyframes_;  ///< oldest first
+};
+
+}  // namespace hxmap::alg

@@ -1,0 +1,184 @@
+#include "hxmap/relocalization/keyframe_database.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+#include <opencv2/features2d.hpp>
+
+namespace hxmap::alg {
+
+FrameFeatures extractFeatures(const cv::Mat& gray8, const cv::Mat& depth_m, const PinholeCamera& camera,
+                              const RelocalizationParams& params, bool require_depth) {
+  FrameFeatures out;
+  if (gray8.empty() || gray8.type() != CV_8UC1) return out;
+  cv::Ptr<cv::ORB> orb = cv::ORB::create(std::max(1, params.features), 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
+                                         std::clamp(params.fast_threshold, 1, 255));
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  orb->detectAndCompute(gray8, cv::noArray(), keypoints, descriptors);
+  const bool have_depth = !depth_m.empty() && depth_m.type() == CV_32FC1 && depth_m.size() == gray8.size();
+  std::vector<int> keep;
+  keep.reserve(keypoints.size());
+  for (size_t i = 0; i < keypoints.size(); ++i) {
+    const cv::Point2f& pt = keypoints[i].pt;
+    const int u = static_cast<int>(pt.x + 0.5f), v = static_cast<int>(pt.y + 0.5f);
+    float z = 0.0f;
+    if (have_depth && u >= 0 && v >= 0 && u < depth_m.cols && v < depth_m.rows) z = depth_m.at<float>(v, u);
+    const bool valid = z > 0.0f && std::isfinite(z);
+    if (require_depth && !valid) continue;
+    out.pixels.push_back(pt);
+    out.points_cam.push_back(valid ? camera.backproject(pt.x, pt.y, z) : Eigen::Vector3f::Zero());
+    keep.push_back(static_cast<int>(i));
+  }
+  out.descriptors.create(static_cast<int>(keep.size()), descriptors.cols, CV_8U);
+  for (size_t k = 0; k < keep.size(); ++k) descriptors.row(keep[k]).copyTo(out.descriptors.row(static_cast<int>(k)));
+  return out;
+}
+
+void KeyframeDatabase::add(uint32_t id, const FrameFeatures& features, const Eigen::Isometry3d& T_world_cam) {
+  if (features.descriptors.rows == 0) return;
+  Entry e;
+  e.id = id;
+  e.T_world_cam = T_world_cam;
+  e.descriptors = features.descriptors.clone();
+  e.points_cam = features.points_cam;
+  keyframes_.push_back(std::move(e));
+  while (params_.max_keyframes > 0 && static_cast<int>(keyframes_.size()) > params_.max_keyframes) evictOne();
+}
+
+bool KeyframeDatabase::updatePose(uint32_t id, const Eigen::Isometry3d& T_world_cam) {
+  for (Entry& e : keyframes_) {
+    if (e.id == id) {
+      e.T_world_cam = T_world_cam;  // points are kept in the camera frame
+      return true;
+    }
+  }
+  return false;
+}
+
+size_t KeyframeDatabase::bytes() const {
+  size_t b = 0;
+  for (const Entry& e : keyframes_) b += e.descriptors.total() + e.points_cam.size() * sizeof(Eigen::Vector3f);
+  return b;
+}
+
+namespace {
+// Pose distance for ranking: meters, plus 0.5 m per radian of rotation.
+double poseDistance(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
+  const Eigen::Isometry3d d = a.inverse() * b;
+  return d.translation().norm() + 0.5 * Eigen::AngleAxisd(d.linear()).angle();
+}
+}  // namespace
+
+void KeyframeDatabase::evictOne() {
+  // DESIGN: the keyframe with the nearest neighbour among the kept ones
+  // goes (the most redundant view), never the newest: the database keeps
+  // views spread over the places the camera has been, which relocalization
+  // and loop closure need, rather than only the last minutes.
+  size_t worst = 0;
+  double worst_d = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i + 1 < keyframes_.size(); ++i) {
+    double nearest = std::numeric_limits<double>::infinity();
+    for (size_t j = 0; j < keyframes_.size(); ++j) {
+      if (j != i) nearest = std::min(nearest, poseDistance(keyframes_[i].T_world_cam, keyframes_[j].T_world_cam));
+    }
+    if (nearest < worst_d) {
+      worst_d = nearest;
+      worst = i;
+    }
+  }
+  keyframes_.erase(keyframes_.begin() + static_cast<std::ptrdiff_t>(worst));
+}
+
+std::vector<RelocalizationCandidate> KeyframeDatabase::query(const FrameFeatures& frame, const PinholeCamera& camera,
+                                                             const Eigen::Isometry3d& near, uint64_t round,
+                                                             std::string* why) const {
+  std::vector<RelocalizationCandidate> out;
+  auto fail = [&](const std::string& reason) {
+    if (why) *why = reason;
+    return out;
+  };
+  if (keyframes_.empty()) return fail("no keyframes kept yet");
+  if (frame.descriptors.rows < params_.min_matches) {
+    return fail("too few features in the frame (" + std::to_string(frame.descriptors.rows) + ")");
+  }
+  // Which keyframes: the nearest to `near`, then a turn of the rest.
+  std::vector<size_t> order(keyframes_.size());
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::vector<size_t> chosen;
+  if (params_.candidates <= 0 || static_cast<int>(order.size()) <= params_.candidates) {
+    chosen = order;
+  } else {
+    std::vector<double> d(keyframes_.size());
+    for (size_t i = 0; i < keyframes_.size(); ++i) d[i] = poseDistance(near, keyframes_[i].T_world_cam);
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
+    const size_t nearest = static_cast<size_t>(params_.candidates) / 2;
+    chosen.assign(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(nearest));
+    const size_t rest = order.size() - nearest;
+    const size_t turn = static_cast<size_t>(params_.candidates) - nearest;
+    for (size_t k = 0; k < turn && k < rest; ++k) {
+      chosen.push_back(order[nearest + (round * turn + k) % rest]);
+    }
+  }
+  cv::BFMatcher matcher(cv::NORM_HAMMING);
+  const cv::Matx33d K(camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
+  int best_matches = 0, best_inliers = 0;
+  for (size_t i : chosen) {
+    const Entry& e = keyframes_[i];
+    std::vector<std::vector<cv::DMatch>> knn;
+    matcher.knnMatch(frame.descriptors, e.descriptors, knn, 2);
+    std::vector<cv::Point3f> object;
+    std::vector<cv::Point2f> image;
+    for (const auto& m : knn) {
+      if (m.size() < 2 || m[0].distance >= params_.ratio_test * m[1].distance) continue;
+      const Eigen::Vector3f p = e.points_cam[static_cast<size_t>(m[0].trainIdx)];
+      object.emplace_back(p.x(), p.y(), p.z());  // in the keyframe's camera frame
+      image.push_back(frame.pixels[static_cast<size_t>(m[0].queryIdx)]);
+    }
+    const int matches = static_cast<int>(object.size());
+    best_matches = std::max(best_matches, matches);
+    if (matches < params_.min_matches) continue;
+    cv::Mat rvec, tvec;
+    std::vector<int> inliers;
+    const bool ok = cv::solvePnPRansac(object, image, K, cv::noArray(), rvec, tvec, false, params_.pnp_iterations,
+                                       static_cast<float>(params_.pnp_reprojection_px), 0.99, inliers,
+                                       cv::SOLVEPNP_EPNP);
+    best_inliers = std::max(best_inliers, static_cast<int>(inliers.size()));
+    if (!ok || static_cast<int>(inliers.size()) < params_.min_pnp_inliers) continue;
+    // Refine on the inliers (Levenberg-Marquardt from the RANSAC pose).
+    std::vector<cv::Point3f> obj_in;
+    std::vector<cv::Point2f> img_in;
+    for (int k : inliers) {
+      obj_in.push_back(object[static_cast<size_t>(k)]);
+      img_in.push_back(image[static_cast<size_t>(k)]);
+    }
+    cv::solvePnPRefineLM(obj_in, img_in, K, cv::noArray(), rvec, tvec);
+    cv::Mat R;
+    cv::Rodrigues(rvec, R);
+    Eigen::Matrix3d Re;
+    cv::cv2eigen(R, Re);
+    Eigen::Isometry3d T_cam_kf = Eigen::Isometry3d::Identity();  // keyframe camera -> frame camera
+    T_cam_kf.linear() = Re;
+    T_cam_kf.translation() = Eigen::Vector3d(tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2));
+    if (!T_cam_kf.matrix().allFinite()) continue;
+    RelocalizationCandidate c;
+    c.keyframe_id = e.id;
+    c.T_world_cam = e.T_world_cam * T_cam_kf.inverse();
+    c.matches = matches;
+    c.pnp_inliers = static_cast<int>(inliers.size());
+    out.push_back(c);
+  }
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.pnp_inliers > b.pnp_inliers; });
+  if (out.empty()) {
+    return fail("no keyframe agrees (" + std::to_string(chosen.size()) + " of " + std::to_string(keyframes_.size()) +
+                " matched; best " + std::to_string(best_matches) + " matches, " + std::to_string(best_inliers) +
+                " PnP inliers)");
+  }
+  return out;
+}
+
+}  // namespace hxmap::alg
