@@ -255,6 +255,11 @@ int runCommand(const RunOptions& o) {
   const Trajectory no_ground_truth;
   const Trajectory& ground_truth = dataset ? dataset->groundTruth() : no_ground_truth;
   const bool realtime = o.realtime || camera;
+  if (o.fuse_ground_truth && (realtime || ground_truth.empty())) {
+    spdlog::error("--fuse-ground-truth: needs an offline run of a dataset with ground truth{}",
+                  realtime ? " (not --realtime or a camera)" : fmt::format(" ({} has none)", o.dataset));
+    return 2;
+  }
   std::error_code ec;
   fs::create_directories(o.out_dir, ec);
   if (ec) {
@@ -308,7 +313,7 @@ int runCommand(const RunOptions& o) {
 
   std::array<std::vector<double>, kStageCount> stage_ms;
   std::vector<double> total_ms;
-  size_t bad_frames = 0;
+  size_t bad_frames = 0, frames_without_truth = 0;
   std::string first_error, realtime_report;
   RefineTally refine;
   RunCounters end_counters;  // for the last health message
@@ -416,7 +421,13 @@ int runCommand(const RunOptions& o) {
       continue;
     }
     const auto t_frame = std::chrono::steady_clock::now();
-    const FrameResult r = frontend.process(*frame);
+    Eigen::Isometry3d T_truth;
+    const bool use_truth = o.fuse_ground_truth &&
+                           alg::interpolatePose(ground_truth,
+                                                frame->depth_stamp_ns > 0 ? frame->depth_stamp_ns : frame->stamp_ns,
+                                                200'000'000, T_truth);
+    if (o.fuse_ground_truth && !use_truth) ++frames_without_truth;
+    const FrameResult r = frontend.process(*frame, use_truth ? &T_truth : nullptr);
     if (!o.trace.empty()) {
       const int64_t seq = static_cast<int64_t>(frames[k]), t = since_start(t_frame);
       trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, frame->stamp_ns});
@@ -486,6 +497,10 @@ int runCommand(const RunOptions& o) {
   summary += fmt::format("frames: processed {}, unreadable skipped {}, keyframes {}\n", total_ms.size(), bad_frames,
                          frontend.keyframes());
   summary += trackingSummary(frontend);
+  if (o.fuse_ground_truth) {
+    summary += fmt::format("fused at the ground-truth poses (--fuse-ground-truth); {} frames without one were tracked\n",
+                           frames_without_truth);
+  }
   const auto mem = frontend.map().memory();
   summary +=
       fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",

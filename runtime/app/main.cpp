@@ -34,6 +34,9 @@ int main(int argc, char** argv) {
                       "intrinsics by name for a dataset without its own: fr1, fr2, fr3 (TUM freiburg 1/2/3) or kinect "
                       "(525, 319.5, 239.5)")
       ->check(CLI::IsMember({"fr1", "fr2", "fr3", "kinect"}));
+  run_cmd->add_flag("--fuse-ground-truth", run.fuse_ground_truth,
+                    "fuse every frame at its ground-truth pose instead of tracking (to measure what tracking costs "
+                    "the map)");
   run_cmd->add_option("--trace", run.trace, "write per-frame stage timings as a Chrome/Perfetto trace (JSON)");
   run_cmd->add_flag("--realtime", run.realtime,
                     "play the dataset at its recorded rate through the runtime threads (frames load first)");

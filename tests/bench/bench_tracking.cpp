@@ -191,7 +191,7 @@ int main(int argc, char** argv) {
       sequences.emplace_back(fs::path(a).filename().string(), a);
     }
   }
-  auto config = rt::loadConfig(config_path);
+  auto config = config_path.empty() ? Expected<rt::HxmapConfig>(rt::HxmapConfig{}) : rt::loadConfig(config_path);
   if (!config) {
     std::fprintf(stderr, "%s\n", config.message().c_str());
     return 2;

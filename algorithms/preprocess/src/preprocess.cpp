@@ -258,6 +258,7 @@ PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& c
                                   const ParallelFor& parallel) {
   PreprocessedFrame out;
   out.stamp_ns = frame.stamp_ns;
+  out.depth_stamp_ns = frame.depth_stamp_ns > 0 ? frame.depth_stamp_ns : frame.stamp_ns;
   out.seq = frame.seq;
   const cv::Size size(camera.width, camera.height);
   const bool depth_ok = frame.depth.type() == CV_32FC1 && frame.depth.size() == size;

@@ -364,8 +364,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       }
       if (acc.inliers < 6) break;
       if (photometric) {
+        const Eigen::Isometry3f Tf_color = (T * reference.T_depth_color).cast<float>();
         accumulateBands(parallel, acc, [&](int c, Accumulation& a) {
-          accumulatePhotometric(frame.levels[pl], ref_points[c], Tf, params, a);
+          accumulatePhotometric(frame.levels[pl], ref_points[c], Tf_color, params, a);
         });
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());

@@ -1,6 +1,7 @@
 #include "hxmap/tracking/state.hpp"
 
 #include <algorithm>
+#include <vector>
 
 namespace hxmap::alg {
 
@@ -26,6 +27,8 @@ const char* poseSourceName(PoseSource source) {
       return "frame-to-frame";
     case PoseSource::kRelocalization:
       return "relocalization";
+    case PoseSource::kGiven:
+      return "given";
   }
   return "?";
 }
@@ -34,6 +37,35 @@ TrackingDecision TrackingStateMachine::start() {
   TrackingDecision d;
   d.state = TrackingState::kTracked;
   d.source = PoseSource::kModel;
+  d.fuse = true;
+  return finish(d);
+}
+
+TrackingParams TrackingStateMachine::gates(const TrackingParams& params) const {
+  TrackingParams p = params;
+  if (consistent_.empty()) {
+    // The map is one frame old: its noise is the frame's own, untested.
+    p.min_consistent_ratio = p.min_consistent_ratio_lost;
+    return p;
+  }
+  std::vector<double> v(consistent_.begin(), consistent_.end());
+  auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  const double typical = *mid;
+  p.min_consistent_ratio = std::min(p.min_consistent_ratio, p.typical_share_fused * typical);
+  p.min_consistent_ratio_lost = std::min(p.min_consistent_ratio_lost, p.typical_share_lost * typical);
+  return p;
+}
+
+void TrackingStateMachine::observe(double consistent_ratio, int window) {
+  consistent_.push_back(consistent_ratio);
+  while (static_cast<int>(consistent_.size()) > std::max(1, window)) consistent_.pop_front();
+}
+
+TrackingDecision TrackingStateMachine::given() {
+  TrackingDecision d;
+  d.state = TrackingState::kTracked;
+  d.source = PoseSource::kGiven;
   d.fuse = true;
   return finish(d);
 }

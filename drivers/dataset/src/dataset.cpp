@@ -198,7 +198,8 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
     const auto& re = rgb->entries[i];
     const auto& de = depth->entries[j];
     d.frames_.push_back({re.stamp_ns, (dir / re.path).string(), (dir / de.path).string(),
-                         fmt::format("{}:{}", rgb_list, re.line), fmt::format("{}:{}", depth_list, de.line)});
+                         fmt::format("{}:{}", rgb_list, re.line), fmt::format("{}:{}", depth_list, de.line),
+                         de.stamp_ns});
   }
   const fs::path gt = dir / "groundtruth.txt";
   if (fs::exists(gt)) {
@@ -285,7 +286,7 @@ Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
       d.skipped_.push_back(msg);
       continue;
     }
-    d.frames_.push_back({number * period_ns, path, it->second, path, it->second});
+    d.frames_.push_back({number * period_ns, path, it->second, path, it->second, number * period_ns});
   }
   const fs::path traj_path = dir / "traj.txt";
   if (fs::exists(traj_path)) {
@@ -365,6 +366,7 @@ Expected<RgbdFrame> Dataset::load(size_t i) const {
   }
   RgbdFrame frame;
   frame.stamp_ns = f.stamp_ns;
+  frame.depth_stamp_ns = f.depth_stamp_ns;
   frame.seq = i;
   depth->convertTo(frame.depth, CV_32F, 1.0 / depth_scale_);
   frame.rgb = *rgb;

@@ -176,6 +176,7 @@ Expected<RgbdFrame> FrameAssembler::assemble(const ColorImage& color, const Dept
   }
   RgbdFrame f;
   f.stamp_ns = color.stamp_ns;
+  f.depth_stamp_ns = depth.stamp_ns;
   f.seq = seq;
   if (color_map_x_.empty()) {
     f.rgb = color.rgb.clone();

@@ -101,6 +101,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("huber_delta_m", k.huber_delta_m, 1e-5, 1);
   v.number("photometric_scale_m", k.photometric_scale_m, 0, 10);
   v.number("photometric_huber", k.photometric_huber, 1e-4, 1);
+  v.boolean("photometric_keyframe_reference", k.photometric_keyframe_reference);
   v.number("photometric_min_gradient", k.photometric_min_gradient, 0, 1);
   v.number("photometric_reference_gradient_ratio", k.photometric_reference_gradient_ratio, 0, 1);
   v.integer("photometric_stride_finest", k.photometric_stride_finest, 1, 16);
@@ -112,6 +113,9 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("min_consistent_ratio", k.min_consistent_ratio, 0, 1);
   v.number("min_consistent_ratio_lost", k.min_consistent_ratio_lost, 0, 1);
   v.number("min_inlier_ratio_fused", k.min_inlier_ratio_fused, 0, 1);
+  v.number("typical_share_fused", k.typical_share_fused, 0, 1);
+  v.number("typical_share_lost", k.typical_share_lost, 0, 1);
+  v.integer("consistent_window", k.consistent_window, 1, 100000);
   v.number("min_hessian_eigenvalue_ratio", k.min_hessian_eigenvalue_ratio, 0, 1);
   v.number("max_motion_translation_m", k.max_motion_translation_m, 0.001, 10);
   v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);

@@ -16,6 +16,9 @@ struct RgbdFrame {
   uint64_t seq = 0;      ///< index in the source, 0-based, gaps mean drops
   cv::Mat rgb;
   cv::Mat depth;
+  /// Capture time of the depth image when the sensor does not synchronize
+  /// the two (Kinect v1: up to half a frame apart); 0 = stamp_ns.
+  int64_t depth_stamp_ns = 0;
 };
 
 /// A pose with a timestamp: T_world_cam maps camera points into the world.

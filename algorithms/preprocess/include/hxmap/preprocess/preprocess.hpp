@@ -31,7 +31,8 @@ struct FrameLevel {
 };
 
 struct PreprocessedFrame {
-  int64_t stamp_ns = 0;
+  int64_t stamp_ns = 0;        ///< the color image's
+  int64_t depth_stamp_ns = 0;  ///< the depth image's (== stamp_ns when synchronized)
   uint64_t seq = 0;
   cv::Mat depth_m;     ///< CV_32F, range-gated raw depth (what is fused)
   cv::Mat rgb;         ///< CV_8UC3

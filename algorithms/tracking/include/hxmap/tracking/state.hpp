@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <string>
 
 #include "hxmap/tracking/icp.hpp"
@@ -18,7 +19,7 @@ enum class TrackingState : uint8_t { kTracked, kDegraded, kLost };
 const char* trackingStateName(TrackingState state);
 
 /// Where a frame's pose came from.
-enum class PoseSource : uint8_t { kNone, kModel, kOdometry, kRelocalization };
+enum class PoseSource : uint8_t { kNone, kModel, kOdometry, kRelocalization, kGiven };
 const char* poseSourceName(PoseSource source);
 
 /// One frame's attempts, each null when it was not tried.
@@ -49,6 +50,9 @@ class TrackingStateMachine {
  public:
   /// The first frame of a map: tracked by definition (it sets the frame).
   TrackingDecision start();
+  /// A frame whose pose is given (evaluation against ground truth): tracked
+  /// and fused.
+  TrackingDecision given();
   /// The decision for the next frame from its attempts. Transitions:
   /// any state -> tracked when the model (or a verified relocalization)
   /// gives a pose within the noise gates; -> degraded when the model's
@@ -56,6 +60,14 @@ class TrackingStateMachine {
   /// fallback gives one (neither from lost: the pose is stale then, and the
   /// previous frame has none); -> lost when nothing does.
   TrackingDecision update(const TrackingAttempts& attempts);
+
+  /// `params` with the residual gates of this frame: lowered to shares of
+  /// the run's typical consistent share where that is lower (see
+  /// TrackingParams::typical_share_fused); with no history yet, the first
+  /// model-tracked frame is judged by the fixed gates' lost floor only.
+  TrackingParams gates(const TrackingParams& params) const;
+  /// The consistent share of a frame the model tracked (ok), for gates().
+  void observe(double consistent_ratio, int window);
 
   TrackingState state() const { return state_; }
   const TrackingCounts& counts() const { return counts_; }
@@ -66,6 +78,7 @@ class TrackingStateMachine {
 
   TrackingState state_ = TrackingState::kLost;
   TrackingCounts counts_;
+  std::deque<double> consistent_;  ///< newest last
   uint64_t lost_run_ = 0;
 };
 

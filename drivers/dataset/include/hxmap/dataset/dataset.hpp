@@ -76,6 +76,7 @@ class Dataset {
     int64_t stamp_ns;
     std::string rgb_path, depth_path;  ///< absolute
     std::string rgb_ref, depth_ref;    ///< "rgb.txt:12" or the file name
+    int64_t depth_stamp_ns = 0;        ///< the associated depth image's own stamp
   };
   Dataset() = default;
   static Status openTum(Dataset& d, const DatasetOptions& options);

@@ -104,7 +104,7 @@ inline const char* stageName(int s) {
 }
 
 struct FrameResult {
-  int64_t stamp_ns = 0;
+  int64_t stamp_ns = 0;  ///< the time the pose refers to: the depth image's capture
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
   bool tracked = false;     ///< the frame has a pose (tracked or degraded; the first frame)
   alg::TrackingState state = alg::TrackingState::kLost;
@@ -183,7 +183,9 @@ class Frontend {
   /// Preprocess, track against the model, integrate, raycast the new model.
   /// A frame that cannot be tracked is reported and not fused; the map is
   /// unchanged and tracking resumes from the last good pose.
-  FrameResult process(const RgbdFrame& frame);
+  /// `T_given` (evaluation: --fuse-ground-truth) replaces tracking: the
+  /// frame is fused at that pose.
+  FrameResult process(const RgbdFrame& frame, const Eigen::Isometry3d* T_given = nullptr);
 
   /// Between frames: fuse a correction computed on a snapshot of the map
   /// (the frontend stays the map's only writer).
@@ -270,11 +272,18 @@ class Frontend {
   void renderModel(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
   int minValidPixels() const;
   void fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found);
+  /// A frame got pose T (fused or only followed): the next frame is
+  /// tracked from it.
+  void followPose(const Eigen::Isometry3d& T, const alg::PreprocessedFrame& pre);
+  /// The frame's color camera relative to its depth camera: the motion
+  /// over the time between the two images at the last velocity.
+  Eigen::Isometry3d colorOffset(const alg::PreprocessedFrame& frame) const;
   /// Lost: the frame matched against the keyframe database; a PnP pose is
   /// taken only when ICP against the model rendered there confirms it
   /// within the noise gates and close to it. On success model_ is the
   /// model at the verified pose.
-  bool relocalize(const alg::PreprocessedFrame& pre, alg::IcpResult& verified, std::string& why);
+  bool relocalize(const alg::PreprocessedFrame& pre, const alg::TrackingParams& gates, alg::IcpResult& verified,
+                  std::string& why);
   void addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
   /// Step 2 of process(): the decision, the result that gave the pose (or
   /// the model's failed one) and the pose.
@@ -295,6 +304,12 @@ class Frontend {
   /// reference and the frame-to-frame fallback's model.
   alg::PreprocessedFrame previous_frame_;
   Eigen::Isometry3d T_previous_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_previous_color_ = Eigen::Isometry3d::Identity();  ///< its color image's pose
+  alg::PreprocessedFrame keyframe_reference_;  ///< the last keyframe (photometric reference when so configured)
+  Eigen::Isometry3d T_keyframe_color_ = Eigen::Isometry3d::Identity();
+  int64_t previous_depth_ns_ = 0;
+  double velocity_dt_s_ = 0;     ///< the time velocity_ spans (0: unknown)
+  bool velocity_valid_ = false;  ///< the last frame had a pose
   alg::TrackingStateMachine state_machine_;
   TrackingCounters tracking_counters_;
   alg::KeyframeDatabase keyframe_db_;
