@@ -162,11 +162,14 @@ std::string trackingSummary(const Frontend& frontend) {
   return fmt::format(
       "tracking: tracked {}, degraded {} ({} followed frame to frame), lost {} ({} times, longest {} frames; {} "
       "given interpolated poses once found again), relocalized {}\n"
-      "  relocalization: {} attempts, {:.1f} ms each, {} candidates refused by the ICP check; keyframe database {} "
+      "  relocalization: {} attempts, {:.1f} ms each ({:.1f} ORB, {:.1f} matching and PnP, the rest ICP checks), {} "
+      "candidates refused by the ICP check; keyframe database {} "
       "keyframes, {:.1f} MiB, {:.1f} ms per keyframe's features; constant-velocity retries {} ({} better)\n",
       c.tracked, c.degraded, c.odometry_frames, frontend.lostFrames(), c.lost_episodes, c.longest_lost_run,
       t.interpolated_poses, c.relocalized, t.relocalization_attempts,
       t.relocalization_attempts ? t.relocalization_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
+      t.relocalization_attempts ? t.relocalization_features_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
+      t.relocalization_attempts ? t.relocalization_query_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
       t.relocalization_rejected, t.database_keyframes, static_cast<double>(t.database_bytes) / (1 << 20),
       t.database_keyframes ? t.keyframe_features_ms / static_cast<double>(frontend.keyframes()) : 0.0,
       t.velocity_retries, t.velocity_wins);

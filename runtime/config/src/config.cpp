@@ -138,6 +138,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("pnp_reprojection_px", l.pnp_reprojection_px, 0.1, 100);
   v.integer("pnp_iterations", l.pnp_iterations, 1, 100000);
   v.integer("candidates", l.candidates, 0, 100000);
+  v.integer("pnp_candidates", l.pnp_candidates, 1, 100000);
   v.number("max_icp_correction_m", l.max_icp_correction_m, 0.001, 10);
   v.number("max_icp_correction_deg", l.max_icp_correction_deg, 0.01, 180);
 

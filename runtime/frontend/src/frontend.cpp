@@ -354,8 +354,12 @@ bool Frontend::relocalize(const alg::PreprocessedFrame& pre, const alg::Tracking
   cv::Mat gray;
   pre.intensity.convertTo(gray, CV_8U, 255.0);
   const alg::FrameFeatures features = alg::extractFeatures(gray, pre.depth_m, camera_, params_.relocalization, false);
+  const auto t_features = std::chrono::steady_clock::now();
   const std::vector<alg::RelocalizationCandidate> candidates =
       keyframe_db_.query(features, camera_, T_last_, tracking_counters_.relocalization_attempts - 1, &why);
+  const auto t_query = std::chrono::steady_clock::now();
+  tracking_counters_.relocalization_features_ms += std::chrono::duration<double, std::milli>(t_features - t0).count();
+  tracking_counters_.relocalization_query_ms += std::chrono::duration<double, std::milli>(t_query - t_features).count();
   const alg::RelocalizationParams& rp = params_.relocalization;
   // The ICP check: against the model rendered at the candidate, without the
   // photometric term (the previous frame is not near this pose).

@@ -19,6 +19,10 @@
 
 #if defined(__x86_64__) && defined(__linux__) && !defined(HXMAP_SANITIZED) && !defined(HXMAP_NO_SIMD_CLONES)
 #define HXMAP_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+/// For loops of __builtin_popcountll: the baseline x86-64 has no popcount
+/// instruction (a library call per word instead).
+#define HXMAP_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
 #else
 #define HXMAP_SIMD_CLONES
+#define HXMAP_POPCNT_CLONES
 #endif

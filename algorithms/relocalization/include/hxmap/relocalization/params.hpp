@@ -22,6 +22,8 @@ struct RelocalizationParams {
   /// so that consecutive attempts cover the whole database at a bounded
   /// cost per frame.
   int candidates = 12;
+  /// Of those, the ones with the most descriptor matches get PnP + RANSAC.
+  int pnp_candidates = 3;
   /// The ICP that verifies a candidate may move it at most this far from
   /// the PnP pose (two independent estimates must agree).
   double max_icp_correction_m = 0.05;

@@ -149,6 +149,7 @@ struct TrackingCounters {
   uint64_t relocalization_attempts = 0;  ///< lost frames matched against the keyframe database
   uint64_t relocalization_rejected = 0;  ///< PnP candidates the ICP check refused
   double relocalization_ms = 0;          ///< total over the attempts
+  double relocalization_features_ms = 0, relocalization_query_ms = 0;  ///< of which ORB, and matching + PnP
   double keyframe_features_ms = 0;       ///< total ORB extraction for the database
   uint64_t interpolated_poses = 0;       ///< lost frames given poses between the ones either side, once found again
   size_t database_keyframes = 0, database_bytes = 0;
