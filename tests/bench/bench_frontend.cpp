@@ -21,6 +21,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "bench_stats.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
@@ -35,16 +36,11 @@
 #endif
 
 using namespace hxmap;
-using Clock = std::chrono::steady_clock;
 
 namespace {
-double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+using bench::Clock;
+using bench::median;
+using bench::ms;
 }  // namespace
 
 int main(int argc, char** argv) {

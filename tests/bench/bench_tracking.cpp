@@ -27,6 +27,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/rgbd.hpp>
 
+#include "bench_stats.hpp"
 #include "commands.hpp"
 #include "hxmap/config/config.hpp"
 #include "hxmap/dataset/dataset.hpp"
@@ -36,17 +37,12 @@
 
 using namespace hxmap;
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
 
 namespace {
 
-double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+using bench::Clock;
+using bench::median;
+using bench::ms;
 
 struct Row {
   std::string method;
@@ -103,7 +99,7 @@ class OpenCvOdometry {
 void printRow(const std::string& sequence, const Row& r, const Trajectory& gt) {
   const alg::AteResult ate = alg::computeAte(r.trajectory, gt);
   const alg::RpeResult rpe = alg::computeRpe(r.trajectory, gt, 1'000'000'000);
-  std::printf("%-28s %-16s %5zu %5zu %5zu %5zu %8.2f %8.2f %8.2f %7.2f  %s\n", sequence.c_str(), r.method.c_str(),
+  std::printf("%-28s %-16s %5zu %5zu %5zu %5zu %8.3f %8.2f %8.2f %7.2f  %s\n", sequence.c_str(), r.method.c_str(),
               r.tracked, r.degraded, r.lost, r.relocalized, ate.pairs ? ate.rmse_m * 100 : -1.0,
               rpe.pairs ? rpe.trans_rmse_m * 100 : -1.0, rpe.pairs ? rpe.rot_rmse_deg : -1.0, median(r.frame_ms),
               r.extra.c_str());

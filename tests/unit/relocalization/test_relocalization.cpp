@@ -26,18 +26,22 @@ class Relocalization : public ::testing::Test {
     sp.frames = 300;
     traj_ = drv::syntheticTrajectory(sp);
   }
+  /// Keyframes every 30 frames (1 s) of the orbit's first 4 s.
+  KeyframeDatabase orbitDatabase() const {
+    KeyframeDatabase db(params_);
+    for (int i : {0, 30, 60, 90, 120}) {
+      const RgbdFrame f = test::syntheticFrame(scene_, kCam, traj_[static_cast<size_t>(i)].T_world_cam, true, i);
+      db.add(static_cast<uint32_t>(i), featuresOf(f, params_), traj_[static_cast<size_t>(i)].T_world_cam);
+    }
+    return db;
+  }
   drv::SyntheticScene scene_ = drv::SyntheticScene::room();
   Trajectory traj_;
   RelocalizationParams params_;
 };
 
 TEST_F(Relocalization, RecoversTheFramesPoseFromANearbyKeyframe) {
-  KeyframeDatabase db(params_);
-  for (int i : {0, 30, 60, 90, 120}) {
-    db.add(static_cast<uint32_t>(i), featuresOf(test::syntheticFrame(scene_, kCam, traj_[i].T_world_cam, true, i),
-                                                params_),
-           traj_[i].T_world_cam);
-  }
+  const KeyframeDatabase db = orbitDatabase();
   // 10 frames (a third of a second, about 12 cm and 5 degrees) past the
   // keyframe at 60; the ranking hint is far off, as after a blackout.
   const int query = 70;
@@ -53,12 +57,7 @@ TEST_F(Relocalization, RecoversTheFramesPoseFromANearbyKeyframe) {
 }
 
 TEST_F(Relocalization, RefusesAFrameOfAnotherRoom) {
-  KeyframeDatabase db(params_);
-  for (int i : {0, 30, 60, 90, 120}) {
-    db.add(static_cast<uint32_t>(i), featuresOf(test::syntheticFrame(scene_, kCam, traj_[i].T_world_cam, true, i),
-                                                params_),
-           traj_[i].T_world_cam);
-  }
+  const KeyframeDatabase db = orbitDatabase();
   // Another room: the quality room at 1.7 times the size, its walls and
   // floor with each other's textures, seen from the sweep path.
   drv::SyntheticParams sp;
