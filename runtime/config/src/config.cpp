@@ -116,6 +116,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("typical_share_fused", k.typical_share_fused, 0, 1);
   v.number("typical_share_lost", k.typical_share_lost, 0, 1);
   v.integer("consistent_window", k.consistent_window, 1, 100000);
+  v.integer("short_loss_frames", k.short_loss_frames, 0, 100000);
   v.number("min_hessian_eigenvalue_ratio", k.min_hessian_eigenvalue_ratio, 0, 1);
   v.number("max_motion_translation_m", k.max_motion_translation_m, 0.001, 10);
   v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);

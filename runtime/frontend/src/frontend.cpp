@@ -277,12 +277,14 @@ alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::Ic
       ++tracking_counters_.velocity_wins;
     }
   }
-  if (icp.ok && state_machine_.state() == alg::TrackingState::kLost) {
+  if (icp.ok && state_machine_.state() == alg::TrackingState::kLost &&
+      state_machine_.consecutiveLost() > static_cast<uint64_t>(std::max(0, params_.tracking.short_loss_frames))) {
     // DESIGN: lost, the last pose is stale; ICP from it that lands far away
     // may have slid along planes into a wrong pose that the depth still
     // agrees with (after a 1.5 s synthetic blackout: 0.24 m off, 90 % of
-    // the residuals within the noise gate). Such a result needs a second,
-    // independent estimate: relocalization's PnP, which ICP then confirms.
+    // the residuals within the noise gate). After more than a short loss
+    // such a result needs a second, independent estimate: relocalization's
+    // PnP, which ICP then confirms.
     const Eigen::Isometry3d moved = T_last_.inverse() * icp.T_world_cam;
     const alg::RelocalizationParams& rp = params_.relocalization;
     if (alg::translationNorm(moved) > rp.max_icp_correction_m ||

@@ -86,6 +86,11 @@ struct TrackingParams {
   double typical_share_fused = 0.6;
   double typical_share_lost = 0.3;
   int consistent_window = 60;
+  /// After a loss of more than this many frames, a model result far from
+  /// the last pose (beyond RelocalizationParams::max_icp_correction_*) is
+  /// taken only when relocalization confirms it; after a shorter loss
+  /// (a few corrupt frames) the camera is still near the last pose.
+  int short_loss_frames = 5;
   /// A frame that associates less than this share of the view is followed,
   /// not fused (the model it met is too small a part of what it sees).
   double min_inlier_ratio_fused = 0.3;
