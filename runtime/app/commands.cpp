@@ -335,7 +335,7 @@ int runCommand(const RunOptions& o) {
     double sum = 0;
     for (int s = 0; s < kStageCount; ++s) {
       // Quality runs on keyframes only: its row is per keyframe.
-      if (s != kQuality || r.keyframe) stage_ms[s].push_back(r.stage_ms[s]);
+      if (s != kKeyframe || r.keyframe) stage_ms[s].push_back(r.stage_ms[s]);
       sum += r.stage_ms[s];
     }
     total_ms.push_back(sum);
@@ -513,7 +513,7 @@ int runCommand(const RunOptions& o) {
   for (int s = 0; s < kStageCount; ++s) {
     const auto p = percentiles(stage_ms[s]);
     summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n",
-                           s == kQuality ? "quality (keyframes)" : stageName(s), p.median, p.p90, p.max);
+                           s == kKeyframe ? "keyframe (quality, ORB)" : stageName(s), p.median, p.p90, p.max);
   }
   const auto pt = percentiles(total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);

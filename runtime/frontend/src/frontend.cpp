@@ -173,18 +173,25 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
     last_kf_ns_ = r.stamp_ns;
     keyframe_reference_ = last_frame_;
     T_keyframe_color_ = T_previous_color_;
-    if (params_.relocalization.enabled) addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
     if (params_.tracking.keyframe_baseline_ratio > 0 && !last_frame_.levels.empty()) {
       last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
     }
     ++keyframes_;
     if (params_.quality_enabled) {
-      StageTimer t(r.stage_ms[kQuality]);
+      StageTimer t(r.stage_ms[kKeyframe]);
       scoreKeyframe(r);
       if (params_.refine_enabled) {
         keepKeyframeImages(r.keyframe_id);
         makeRefineJobs(r.keyframe_id);
       }
+    }
+    if (params_.relocalization.enabled) {
+      double features_ms = 0;
+      {
+        StageTimer t(features_ms);
+        addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
+      }
+      r.stage_ms[kKeyframe] += features_ms;
     }
   }
   initialized_ = true;

@@ -96,10 +96,11 @@ struct RefineOutcome {
 /// runs jobs in slices under its scheduler instead).
 RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params);
 
-/// kQuality runs on keyframes only (0 ms on other frames).
-enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kQuality, kStageCount };
+/// kKeyframe runs on keyframes only (0 ms on other frames): quality
+/// scoring, refinement jobs and the keyframe database's features.
+enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kKeyframe, kStageCount };
 inline const char* stageName(int s) {
-  static const char* names[] = {"preprocess", "track", "integrate", "raycast", "quality"};
+  static const char* names[] = {"preprocess", "track", "integrate", "raycast", "keyframe"};
   return names[s];
 }
 
