@@ -164,7 +164,7 @@ std::string trackingSummary(const Frontend& frontend) {
       "given interpolated poses once found again), relocalized {}\n"
       "  relocalization: {} attempts, {:.1f} ms each ({:.1f} ORB, {:.1f} matching and PnP, the rest ICP checks), {} "
       "candidates refused by the ICP check; keyframe database {} "
-      "keyframes, {:.1f} MiB, {:.1f} ms per keyframe's features; constant-velocity retries {} ({} better)\n",
+      "keyframes, {:.1f} MiB, {:.1f} ms per keyframe's features; constant-velocity retries {} ({} better); photometric weight at the end {:.3f} m per unit\n",
       c.tracked, c.degraded, c.odometry_frames, frontend.lostFrames(), c.lost_episodes, c.longest_lost_run,
       t.interpolated_poses, c.relocalized, t.relocalization_attempts,
       t.relocalization_attempts ? t.relocalization_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
@@ -172,7 +172,7 @@ std::string trackingSummary(const Frontend& frontend) {
       t.relocalization_attempts ? t.relocalization_query_ms / static_cast<double>(t.relocalization_attempts) : 0.0,
       t.relocalization_rejected, t.database_keyframes, static_cast<double>(t.database_bytes) / (1 << 20),
       t.database_keyframes ? t.keyframe_features_ms / static_cast<double>(frontend.keyframes()) : 0.0,
-      t.velocity_retries, t.velocity_wins);
+      t.velocity_retries, t.velocity_wins, t.photometric_scale_m);
 }
 
 }  // namespace
@@ -610,6 +610,11 @@ int synthCommand(const SynthOptions& o) {
   drv::SyntheticParams p;
   p.frames = o.frames > 0 ? o.frames : sc.frames;
   p.seed = static_cast<uint64_t>(o.seed >= 0 ? o.seed : sc.seed);
+  p.fps = o.fps > 0 ? o.fps : sc.fps;
+  if (!(p.fps >= 1 && p.fps <= 1000)) {
+    spdlog::error("--fps: {} is not within [1, 1000]", p.fps);
+    return 2;
+  }
   p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
   if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect" && p.trajectory != "fast") {
     spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast", p.trajectory);
@@ -649,6 +654,18 @@ int synthCommand(const SynthOptions& o) {
   p.noise = sc.noise && !o.no_noise;
   p.noise_scale = sc.noise_scale;
   p.missing_blobs_per_frame = sc.missing_blobs_per_frame;
+  p.color_delay_s = sc.color_delay_s;
+  p.rolling_shutter_s = sc.rolling_shutter_s;
+  p.exposure_s = sc.exposure_s;
+  p.gain_variation = sc.gain_variation;
+  if (o.handheld_camera) {
+    // A consumer RGB-D camera's color stream indoors (Kinect v1 class),
+    // where the configuration does not say otherwise.
+    if (p.color_delay_s == 0.0) p.color_delay_s = 0.012;
+    if (p.rolling_shutter_s == 0.0) p.rolling_shutter_s = 0.03;
+    if (p.exposure_s == 0.0) p.exposure_s = 0.02;
+    if (p.gain_variation == 0.0) p.gain_variation = 0.1;
+  }
   Progress progress("rendering", static_cast<size_t>(p.frames));
   const auto status = drv::writeSyntheticSequence(o.out_dir, scene, p, makeParallelFor(config->runtime.threads),
                                                   [&](int done, int) { progress.update(static_cast<size_t>(done)); });
@@ -658,12 +675,16 @@ int synthCommand(const SynthOptions& o) {
   }
   const drv::TrajectorySpeeds speeds = drv::trajectorySpeeds(drv::syntheticTrajectory(p));
   spdlog::info(
-      "wrote {} frames of the synthetic {} scene (seed {}, {} trajectory, noise {}, scale {}) to {}; camera speed "
+      "wrote {} frames at {} FPS of the synthetic {} scene (seed {}, {} trajectory, noise {}, scale {}) to {}; camera speed "
       "peak {:.2f} m/s and {:.0f} deg/s, mean {:.2f} m/s and {:.0f} deg/s",
-      p.frames, scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", p.scale, o.out_dir, speeds.max_linear_mps,
+      p.frames, p.fps, scene_name, p.seed, p.trajectory, p.noise ? "on" : "off", p.scale, o.out_dir, speeds.max_linear_mps,
       speeds.max_angular_dps, speeds.mean_linear_mps, speeds.mean_angular_dps);
   if (p.blackout_s > 0) spdlog::info("blackout from {:.2f} s for {:.2f} s", p.blackout_start_s, p.blackout_s);
   if (p.drop_every > 0) spdlog::info("one frame in {} left out of the lists", p.drop_every);
+  if (drv::hasColorEffects(p)) {
+    spdlog::info("color {:.0f} ms after depth, rolling shutter {:.0f} ms, exposure {:.0f} ms, gain +-{:.0f} %",
+                 1000 * p.color_delay_s, 1000 * p.rolling_shutter_s, 1000 * p.exposure_s, 100 * p.gain_variation);
+  }
   return 0;
 }
 

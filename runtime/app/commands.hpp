@@ -37,12 +37,14 @@ struct SynthOptions {
   std::string out_dir;
   std::string config;
   int frames = -1, seed = -1;
+  double fps = -1;
   std::string trajectory;
   std::string scene;
   double scale = -1;
   bool no_noise = false;
   std::string blackout;  ///< "START_S:DURATION_S", empty = none
   int drop_every = 0;
+  bool handheld_camera = false;  ///< typical color-camera imperfections (see main.cpp)
 };
 int synthCommand(const SynthOptions& options);
 

@@ -58,6 +58,8 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--config", synth.config, "YAML configuration (synthetic section)");
   synth_cmd->add_option("--frames", synth.frames, "number of frames");
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
+  synth_cmd->add_option("--fps", synth.fps,
+                        "frame rate the trajectory is sampled at (default 30; 10: three times the motion per frame)");
   synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep, inspect or fast (hand-held, jerky)");
   synth_cmd->add_option("--blackout", synth.blackout,
                         "START_S:DURATION_S: no depth and black color for that long (the camera keeps moving)");
@@ -69,6 +71,10 @@ int main(int argc, char** argv) {
                         "scene and trajectory scaled by this (0.5: the quality room's thin structures as thin against "
                         "1 cm voxels as at full size against 2 cm)");
   synth_cmd->add_flag("--no-noise", synth.no_noise, "exact depth, no sensor model");
+  synth_cmd->add_flag("--handheld-camera", synth.handheld_camera,
+                      "a consumer color camera: exposed 12 ms after the depth, 30 ms rolling shutter, 20 ms exposure "
+                      "(motion blur), auto exposure +-10 % (config keys synthetic.color_delay_s, rolling_shutter_s, "
+                      "exposure_s, gain_variation)");
 
   std::string demo_out = "hxmap_demo", demo_config;
   auto* demo_cmd = app.add_subcommand("demo", "render the built-in synthetic room and map it, with accuracy");

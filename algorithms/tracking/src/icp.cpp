@@ -86,13 +86,19 @@ class NormalEquations {
 struct Accumulation {
   NormalEquations eq;
   double sq_sum = 0;
+  double abs_sum = 0;  ///< |r| clipped at 3 Huber thresholds (a robust spread)
   int inliers = 0;
   int consistent = 0;  ///< inliers within consistent_sigmas * sigma(z) of the model's plane
+  double photometric_abs_sum = 0;  ///< the same for the photometric residuals
+  int photometric_n = 0;
   void merge(const Accumulation& o) {
     eq.merge(o.eq);
     sq_sum += o.sq_sum;
+    abs_sum += o.abs_sum;
     inliers += o.inliers;
     consistent += o.consistent;
+    photometric_abs_sum += o.photometric_abs_sum;
+    photometric_n += o.photometric_n;
   }
 };
 
@@ -206,6 +212,7 @@ void accumulate(const std::vector<FramePoint>& points, const ModelView& model, c
     const float J[6] = {xn.x(), xn.y(), xn.z(), n.x(), n.y(), n.z()};
     acc.eq.add(J, fp.conf * cos_n * w_robust, r);
     acc.sq_sum += static_cast<double>(r) * r;
+    acc.abs_sum += std::min(ar, 3.0f * huber);
     ++acc.inliers;
     const float dz = fp.p[2] - 0.4f;
     acc.consistent += ar <= k_sig * (sig_a + sig_b * dz * dz);
@@ -305,6 +312,8 @@ void accumulatePhotometric(const FrameLevel& cur, const std::vector<RefPoint>& p
     const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
     const float ar = std::abs(r);
     acc.eq.add(J, p.conf * (ar <= huber ? 1.0f : huber / ar), scale * r);
+    acc.photometric_abs_sum += std::min(ar, 3.0f * huber);
+    ++acc.photometric_n;
   }
   acc.eq.flush();
 }
@@ -331,6 +340,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       reference.frame != nullptr && params.photometric_scale_m > 0 && frame.has_color && reference.frame->has_color;
   Accumulation last;  // the finest level's last point-to-plane evaluation
   bool have_last = false;
+  double photometric_abs_sum = 0;  // and of its photometric terms
+  int photometric_n = 0;
   for (int l = levels - 1; l >= finest; --l) {
     const int iters = iterations[std::min(l - finest, 2)];
     const int stride = l == finest ? params.icp_stride_finest : 1;
@@ -364,10 +375,18 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       }
       if (acc.inliers < 6) break;
       if (photometric) {
-        const Eigen::Isometry3f Tf_color = (T * reference.T_depth_color).cast<float>();
+        const Eigen::Isometry3d T_depth_color =
+            reference.color_offset_ratio != 0.0
+                ? expSE3(logSE3(reference.T_world_previous.inverse() * T) * reference.color_offset_ratio)
+                : reference.T_depth_color;
+        const Eigen::Isometry3f Tf_color = (T * T_depth_color).cast<float>();
         accumulateBands(parallel, acc, [&](int c, Accumulation& a) {
           accumulatePhotometric(frame.levels[pl], ref_points[c], Tf_color, params, a);
         });
+        if (l == finest) {
+          photometric_abs_sum = acc.photometric_abs_sum;
+          photometric_n = acc.photometric_n;
+        }
       }
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());
@@ -397,6 +416,8 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   result.inliers = last.inliers;
   result.rms_residual_m = last.inliers > 0 ? std::sqrt(last.sq_sum * final_stride * final_stride / last.inliers) : 0.0;
   result.consistent_ratio = last.inliers > 0 ? static_cast<double>(last.consistent) / last.inliers : 0.0;
+  result.mean_abs_residual_m = last.inliers > 0 ? last.abs_sum * final_stride * final_stride / last.inliers : 0.0;
+  result.photometric_mean_abs = photometric_n > 0 ? photometric_abs_sum / photometric_n : 0.0;
   result.information = last.eq.H() * static_cast<double>(final_stride * final_stride);
   Eigen::SelfAdjointEigenSolver<Matrix6d> eig(result.information);
   const double emax = eig.eigenvalues().maxCoeff();

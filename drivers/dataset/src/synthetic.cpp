@@ -424,6 +424,54 @@ alg::TriangleMesh SyntheticScene::mesh() const {
   return out;
 }
 
+Eigen::Isometry3d syntheticPose(const SyntheticParams& params, double t) {
+  Eigen::Vector3d eye, target;
+  if (params.trajectory == "inspect") {
+    // Along the back wall (x -1 -> 1 in 4 s, then back), eye 1 m high,
+    // rising to 1.6 m around t = 2 s to glance over the shelf.
+    const double x = -1.0 + 2.0 * (0.5 - 0.5 * std::cos(M_PI * t / 4.0));
+    const double rise = std::abs(t - 2.0) < 0.5 ? 0.5 + 0.5 * std::cos(M_PI * (t - 2.0) / 0.5) : 0.0;
+    eye = {x, -0.9 + 0.05 * std::sin(1.3 * t), 1.0 + 0.6 * rise};
+    target = {x + 0.3 * std::sin(0.7 * t), 1.5, eye.z() - 0.1};
+  } else if (params.trajectory == "sweep") {
+    const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
+    eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
+    target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
+  } else if (params.trajectory == "fast") {
+    // Around the table like the orbit, in surges: the angle's rate swings
+    // between -0.24 and 0.84 rad/s (about 1.1 m/s along the circle and as
+    // many degrees per second of yaw), with a hand's shake of a few
+    // millimeters at 3-5 Hz on the eye and the target.
+    const double phi = -2.3 + 0.3 * t + 0.3 * std::sin(1.8 * t);
+    const double r = 1.35 + 0.1 * std::sin(0.9 * t);
+    eye = {0.3 + r * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.15 * std::sin(1.7 * t)};
+    eye += Eigen::Vector3d(0.004 * std::sin(2 * M_PI * 4.3 * t), 0.004 * std::sin(2 * M_PI * 3.7 * t + 1.0),
+                           0.003 * std::sin(2 * M_PI * 5.1 * t + 2.0));
+    target = {0.2 + 0.15 * std::sin(0.8 * t) + 0.012 * std::sin(2 * M_PI * 2.9 * t),
+              0.25 + 0.1 * std::cos(0.6 * t) + 0.012 * std::sin(2 * M_PI * 3.3 * t + 0.5), 0.65};
+  } else {
+    const double phi = -2.3 + 0.3 * t;  // around the table
+    eye = {0.3 + 1.35 * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.12 * std::sin(1.1 * t)};
+    target = {0.2 + 0.15 * std::sin(0.8 * t), 0.25 + 0.1 * std::cos(0.6 * t), 0.65};
+  }
+  eye *= params.scale;
+  target *= params.scale;
+  const Eigen::Vector3d forward = (target - eye).normalized();
+  const Eigen::Vector3d right = forward.cross(Eigen::Vector3d::UnitZ()).normalized();
+  const Eigen::Vector3d down = forward.cross(right);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear().col(0) = right;
+  T.linear().col(1) = down;
+  T.linear().col(2) = forward;
+  T.translation() = eye;
+  return T;
+}
+
+bool hasColorEffects(const SyntheticParams& params) {
+  return params.color_delay_s != 0.0 || params.rolling_shutter_s > 0.0 || params.exposure_s > 0.0 ||
+         params.gain_variation > 0.0;
+}
+
 Trajectory syntheticTrajectory(const SyntheticParams& params) {
   Trajectory traj;
   const int64_t period_ns = static_cast<int64_t>(1e9 / params.fps);
@@ -431,47 +479,9 @@ Trajectory syntheticTrajectory(const SyntheticParams& params) {
   // Speeds are fixed in physical units (about 0.35 m/s, 20 deg/s), so a
   // longer sequence covers more of the room rather than moving faster.
   for (int i = 0; i < params.frames; ++i) {
-    const double t = static_cast<double>(i) / params.fps;  // seconds
-    Eigen::Vector3d eye, target;
-    if (params.trajectory == "inspect") {
-      // Along the back wall (x -1 -> 1 in 4 s, then back), eye 1 m high,
-      // rising to 1.6 m around t = 2 s to glance over the shelf.
-      const double x = -1.0 + 2.0 * (0.5 - 0.5 * std::cos(M_PI * t / 4.0));
-      const double rise = std::abs(t - 2.0) < 0.5 ? 0.5 + 0.5 * std::cos(M_PI * (t - 2.0) / 0.5) : 0.0;
-      eye = {x, -0.9 + 0.05 * std::sin(1.3 * t), 1.0 + 0.6 * rise};
-      target = {x + 0.3 * std::sin(0.7 * t), 1.5, eye.z() - 0.1};
-    } else if (params.trajectory == "sweep") {
-      const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
-      eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
-      target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
-    } else if (params.trajectory == "fast") {
-      // Around the table like the orbit, in surges: the angle's rate swings
-      // between -0.24 and 0.84 rad/s (about 1.1 m/s along the circle and as
-      // many degrees per second of yaw), with a hand's shake of a few
-      // millimeters at 3-5 Hz on the eye and the target.
-      const double phi = -2.3 + 0.3 * t + 0.3 * std::sin(1.8 * t);
-      const double r = 1.35 + 0.1 * std::sin(0.9 * t);
-      eye = {0.3 + r * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.15 * std::sin(1.7 * t)};
-      eye += Eigen::Vector3d(0.004 * std::sin(2 * M_PI * 4.3 * t), 0.004 * std::sin(2 * M_PI * 3.7 * t + 1.0),
-                             0.003 * std::sin(2 * M_PI * 5.1 * t + 2.0));
-      target = {0.2 + 0.15 * std::sin(0.8 * t) + 0.012 * std::sin(2 * M_PI * 2.9 * t),
-                0.25 + 0.1 * std::cos(0.6 * t) + 0.012 * std::sin(2 * M_PI * 3.3 * t + 0.5), 0.65};
-    } else {
-      const double phi = -2.3 + 0.3 * t;  // around the table
-      eye = {0.3 + 1.35 * std::cos(phi), 0.1 + 1.0 * std::sin(phi), 1.35 + 0.12 * std::sin(1.1 * t)};
-      target = {0.2 + 0.15 * std::sin(0.8 * t), 0.25 + 0.1 * std::cos(0.6 * t), 0.65};
-    }
-    eye *= params.scale;
-    target *= params.scale;
-    const Eigen::Vector3d forward = (target - eye).normalized();
-    const Eigen::Vector3d right = forward.cross(Eigen::Vector3d::UnitZ()).normalized();
-    const Eigen::Vector3d down = forward.cross(right);
     StampedPose p;
     p.stamp_ns = start_ns + i * period_ns;
-    p.T_world_cam.linear().col(0) = right;
-    p.T_world_cam.linear().col(1) = down;
-    p.T_world_cam.linear().col(2) = forward;
-    p.T_world_cam.translation() = eye;
+    p.T_world_cam = syntheticPose(params, static_cast<double>(i) / params.fps);
     traj.push_back(p);
   }
   return traj;
@@ -498,6 +508,47 @@ TrajectorySpeeds trajectorySpeeds(const Trajectory& trajectory) {
   }
   return s;
 }
+
+namespace {
+
+// The color camera's image with SyntheticParams' imperfections: each row at
+// its own time (rolling shutter), averaged over the exposure (motion blur),
+// scaled by the auto exposure's gain.
+void renderColorWithEffects(const SyntheticScene& scene, const alg::PinholeCamera& cam, const SyntheticParams& params,
+                            int frame_index, const ParallelFor& parallel, cv::Mat& rgb) {
+  const double t_color = static_cast<double>(frame_index) / params.fps + params.color_delay_s;
+  const int samples = params.exposure_s > 0.0 ? 5 : 1;
+  const float gain = static_cast<float>(1.0 + params.gain_variation * std::sin(2.0 * M_PI * t_color / 4.0 + 0.7));
+  parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
+    std::vector<Eigen::Isometry3f> poses(static_cast<size_t>(samples));
+    for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
+      const double t_row =
+          t_color + params.rolling_shutter_s * ((static_cast<double>(v) + 0.5) / cam.height - 0.5);
+      for (int s = 0; s < samples; ++s) {
+        const double t = t_row + params.exposure_s * ((s + 0.5) / samples - 0.5);
+        poses[static_cast<size_t>(s)] = syntheticPose(params, t).cast<float>();
+      }
+      for (int u = 0; u < cam.width; ++u) {
+        const Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
+        Vector3f sum = Vector3f::Zero();
+        for (const Eigen::Isometry3f& T : poses) {
+          const Vector3f dir = (T.linear() * ray_cam).normalized();
+          float t = 0;
+          Vector3f n;
+          int k = -1;
+          if (!scene.raycast(T.translation(), dir, t, n, k)) continue;
+          const alg::Color3 c = scene.color(T.translation() + t * dir, n, k);
+          sum += Vector3f(c[0], c[1], c[2]);
+        }
+        sum *= gain / static_cast<float>(samples);
+        rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(cv::saturate_cast<uint8_t>(sum.x()), cv::saturate_cast<uint8_t>(sum.y()),
+                                            cv::saturate_cast<uint8_t>(sum.z()));
+      }
+    }
+  });
+}
+
+}  // namespace
 
 RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera& cam,
                           const Eigen::Isometry3d& T_world_cam, const SyntheticParams& params, int frame_index,
@@ -534,6 +585,7 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
       }
     }
   });
+  if (hasColorEffects(params)) renderColorWithEffects(scene, cam, params, frame_index, parallel, out.rgb);
   out.depth = out.depth_true.clone();
   if (!params.noise) return out;
 
@@ -599,27 +651,31 @@ Status writeSyntheticSequence(const std::string& dir, const SyntheticScene& scen
       f.rgb.setTo(cv::Scalar(0, 0, 0));
     }
     const std::string stamp = formatStampS(traj[i].stamp_ns);
+    const std::string color_stamp =
+        formatStampS(traj[i].stamp_ns + static_cast<int64_t>(std::llround(params.color_delay_s * 1e9)));
     cv::Mat bgr, depth16;
     cv::cvtColor(f.rgb, bgr, cv::COLOR_RGB2BGR);
     f.depth.convertTo(depth16, CV_16U, 5000.0);
-    const std::string rgb_rel = "rgb/" + stamp + ".png", depth_rel = "depth/" + stamp + ".png";
+    const std::string rgb_rel = "rgb/" + color_stamp + ".png", depth_rel = "depth/" + stamp + ".png";
     if (!cv::imwrite((fs::path(dir) / rgb_rel).string(), bgr) ||
         !cv::imwrite((fs::path(dir) / depth_rel).string(), depth16)) {
       return Error{dir + ": cannot write images (disk full or not writable?)"};
     }
-    rgb_list += stamp + " " + rgb_rel + "\n";
+    rgb_list += color_stamp + " " + rgb_rel + "\n";
     depth_list += stamp + " " + depth_rel + "\n";
     if (progress) progress(i + 1, params.frames);
   }
   const auto& c = params.camera;
   const std::string calib = fmt::format(
-      "# hxmap synthetic sequence (seed {}, trajectory {}, noise {}, scale {}, blackout {} s from {} s, drop every "
-      "{})\nfx: {}\nfy: {}\ncx: {}\ncy: {}\nwidth: "
+      "# hxmap synthetic sequence (seed {}, trajectory {}, {} FPS, noise {}, scale {}, blackout {} s from {} s, drop "
+      "every {}; color {} s after depth, rolling shutter {} s, exposure {} s, gain +-{})\nfx: {}\nfy: {}\ncx: "
+      "{}\ncy: {}\nwidth: "
       "{}\n"
       "height: {}\ndepth_scale: 5000\n"
       "# the sensor returns no depth where |cos(incidence)| is below this\nsensor_grazing_cos: {}\n",
-      params.seed, params.trajectory, params.noise ? "on" : "off", params.scale, params.blackout_s,
-      params.blackout_start_s, params.drop_every, c.fx, c.fy, c.cx, c.cy, c.width, c.height, params.grazing_cos);
+      params.seed, params.trajectory, params.fps, params.noise ? "on" : "off", params.scale, params.blackout_s,
+      params.blackout_start_s, params.drop_every, params.color_delay_s, params.rolling_shutter_s, params.exposure_s,
+      params.gain_variation, c.fx, c.fy, c.cx, c.cy, c.width, c.height, params.grazing_cos);
   for (const auto& [name, text] : {std::pair{"rgb.txt", rgb_list},
                                    {"depth.txt", depth_list},
                                    {"groundtruth.txt", formatTumTrajectory(traj)},

@@ -100,6 +100,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("max_normal_angle_deg", k.max_normal_angle_deg, 1, 90);
   v.number("huber_delta_m", k.huber_delta_m, 1e-5, 1);
   v.number("photometric_scale_m", k.photometric_scale_m, 0, 10);
+  v.boolean("photometric_scale_from_residuals", k.photometric_scale_from_residuals);
+  v.integer("photometric_scale_window", k.photometric_scale_window, 1, 10000);
   v.number("photometric_huber", k.photometric_huber, 1e-4, 1);
   v.boolean("photometric_keyframe_reference", k.photometric_keyframe_reference);
   v.number("photometric_min_gradient", k.photometric_min_gradient, 0, 1);
@@ -121,6 +123,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("max_motion_translation_m", k.max_motion_translation_m, 0.001, 10);
   v.number("max_motion_rotation_deg", k.max_motion_rotation_deg, 0.1, 180);
   v.boolean("constant_velocity", k.constant_velocity);
+  v.boolean("color_offset_from_motion", k.color_offset_from_motion);
   v.number("keyframe_translation_m", k.keyframe_translation_m, 0, 10);
   v.number("keyframe_translation_voxels", k.keyframe_translation_voxels, 0, 1000);
   v.number("keyframe_baseline_ratio", k.keyframe_baseline_ratio, 0, 10);
@@ -249,6 +252,7 @@ void visit(HxmapConfig& c, Visitor& v) {
 
   v.section("synthetic");
   v.integer("frames", c.synthetic.frames, 1, 100000);
+  v.number("fps", c.synthetic.fps, 1, 1000);
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);
   v.choice("scene", c.synthetic.scene, {"room", "quality"});
   v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast"});
@@ -256,6 +260,10 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.boolean("noise", c.synthetic.noise);
   v.number("noise_scale", c.synthetic.noise_scale, 0, 100);
   v.integer("missing_blobs_per_frame", c.synthetic.missing_blobs_per_frame, 0, 100);
+  v.number("color_delay_s", c.synthetic.color_delay_s, -0.1, 0.1);
+  v.number("rolling_shutter_s", c.synthetic.rolling_shutter_s, 0, 0.1);
+  v.number("exposure_s", c.synthetic.exposure_s, 0, 0.1);
+  v.number("gain_variation", c.synthetic.gain_variation, 0, 0.5);
 
   v.section("eval");
   v.integer("mesh_samples", c.eval.mesh_samples, 1000, 100000000);

@@ -245,6 +245,16 @@ Eigen::Isometry3d Frontend::colorOffset(const alg::PreprocessedFrame& f) const {
   return alg::expSE3(alg::logSE3(velocity_) * (tau_s / velocity_dt_s_));
 }
 
+double Frontend::photometricScale() const {
+  const alg::TrackingParams& p = params_.tracking;
+  if (!p.photometric_scale_from_residuals || p.photometric_scale_m <= 0 || photometric_ratios_.size() < 5) {
+    return p.photometric_scale_m;
+  }
+  std::vector<double> r(photometric_ratios_.begin(), photometric_ratios_.end());
+  std::nth_element(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(r.size() / 2), r.end());
+  return std::clamp(r[r.size() / 2], p.photometric_scale_m / 4, p.photometric_scale_m * 4);
+}
+
 int Frontend::minValidPixels() const {
   return std::max(params_.tracking.min_inliers, camera_.width * camera_.height / 100);
 }
@@ -269,9 +279,17 @@ alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::Ic
   }
   const bool kf_ref = params_.tracking.photometric_keyframe_reference && !keyframe_reference_.levels.empty() &&
                       state_machine_.state() == alg::TrackingState::kTracked;
-  const alg::PhotometricReference reference{kf_ref ? &keyframe_reference_ : &previous_frame_,
-                                            kf_ref ? T_keyframe_color_ : T_previous_color_, colorOffset(pre)};
-  const alg::TrackingParams tp = state_machine_.gates(params_.tracking);
+  alg::PhotometricReference reference{kf_ref ? &keyframe_reference_ : &previous_frame_,
+                                      kf_ref ? T_keyframe_color_ : T_previous_color_, colorOffset(pre)};
+  const double interval_s = static_cast<double>(pre.depth_stamp_ns - previous_frame_.depth_stamp_ns) * 1e-9;
+  if (params_.tracking.color_offset_from_motion && pre.stamp_ns != pre.depth_stamp_ns &&
+      !previous_frame_.levels.empty() && interval_s > 0 && state_machine_.state() != alg::TrackingState::kLost) {
+    reference.T_world_previous = T_previous_;
+    reference.color_offset_ratio = static_cast<double>(pre.stamp_ns - pre.depth_stamp_ns) * 1e-9 / interval_s;
+  }
+  alg::TrackingParams tp = state_machine_.gates(params_.tracking);
+  tp.photometric_scale_m = photometricScale();
+  tracking_counters_.photometric_scale_m = tp.photometric_scale_m;
   // From the last pose; when that is not good enough, from the constant
   // velocity prediction too, keeping the better.
   icp = alg::trackPointToPlane(pre, model_, T_last_, tp, reference, parallel_);
@@ -316,6 +334,12 @@ alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::Ic
     if (relocalize(pre, tp, relocalized, relocalization_failure)) attempts.relocalization = &relocalized;
   }
   if (icp.ok) state_machine_.observe(icp.consistent_ratio, params_.tracking.consistent_window);
+  if (icp.ok && icp.degraded.empty() && icp.photometric_mean_abs > 0 && icp.mean_abs_residual_m > 0) {
+    photometric_ratios_.push_back(icp.mean_abs_residual_m / icp.photometric_mean_abs);
+    while (photometric_ratios_.size() > static_cast<size_t>(std::max(1, params_.tracking.photometric_scale_window))) {
+      photometric_ratios_.pop_front();
+    }
+  }
   alg::TrackingDecision d = state_machine_.update(attempts);
   if (d.state == alg::TrackingState::kLost && !relocalization_failure.empty()) {
     d.reason += "; relocalization: " + relocalization_failure;

@@ -4,6 +4,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/ply.hpp"
@@ -76,6 +77,46 @@ TEST(Synthetic, AScaledSceneSeenFromAScaledTrajectoryIsTheSameImageAtScaledDepth
     EXPECT_LT(color_off, both / 500) << "frame " << i << ": pixels whose color differs by more than 2";
     EXPECT_LT(worst, 2e-4) << "frame " << i << ": |z_half - z_full / 2| (m)";
   }
+}
+
+TEST(Synthetic, TheHandHeldColorCameraIsExposedLaterRowByRowAndBlurred) {
+  const SyntheticScene scene = SyntheticScene::room();
+  SyntheticParams p;
+  p.noise = false;
+  p.frames = 60;
+  p.trajectory = "fast";
+  const int i = 40;
+  const Eigen::Isometry3d T_depth = syntheticPose(p, i / p.fps);
+  const RenderedFrame ideal = renderFrame(scene, kCam, T_depth, p, i);
+  // A delay alone: the whole color image is the ideal one of the pose
+  // color_delay_s later, and depth is untouched.
+  SyntheticParams delayed = p;
+  delayed.color_delay_s = 0.012;
+  ASSERT_TRUE(hasColorEffects(delayed));
+  const RenderedFrame d = renderFrame(scene, kCam, T_depth, delayed, i);
+  const RenderedFrame later = renderFrame(scene, kCam, syntheticPose(p, i / p.fps + 0.012), p, i);
+  EXPECT_EQ(cv::norm(d.rgb, later.rgb, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(d.depth, ideal.depth, cv::NORM_INF), 0.0);
+  EXPECT_GT(cv::norm(d.rgb, ideal.rgb, cv::NORM_L1), 0.0);
+  // A rolling shutter: the middle row is exposed at the stamp, the top row
+  // half the readout earlier.
+  SyntheticParams rolling = p;
+  rolling.rolling_shutter_s = 0.03;
+  const RenderedFrame r = renderFrame(scene, kCam, T_depth, rolling, i);
+  const RenderedFrame early = renderFrame(scene, kCam, syntheticPose(p, i / p.fps - 0.015 * (1 - 1.0 / kCam.height)), p, i);
+  EXPECT_EQ(cv::norm(r.rgb.row(0), early.rgb.row(0), cv::NORM_INF), 0.0);
+  EXPECT_GT(cv::norm(r.rgb.row(0), ideal.rgb.row(0), cv::NORM_L1), 0.0);
+  // Motion blur: less intensity gradient than the sharp image.
+  SyntheticParams blurred = p;
+  blurred.exposure_s = 0.03;
+  const RenderedFrame b = renderFrame(scene, kCam, T_depth, blurred, i);
+  auto gradientEnergy = [](const cv::Mat& rgb) {
+    cv::Mat gray, gx;
+    cv::cvtColor(rgb, gray, cv::COLOR_RGB2GRAY);
+    cv::Sobel(gray, gx, CV_32F, 1, 0);
+    return cv::norm(gx, cv::NORM_L1);
+  };
+  EXPECT_LT(gradientEnergy(b.rgb), 0.9 * gradientEnergy(ideal.rgb));
 }
 
 TEST(Synthetic, GroundTruthMeshMatchesTheSdf) {

@@ -83,6 +83,35 @@ TEST_F(IcpTest, PhotometricTermAloneRecoversPerturbation) {
   EXPECT_LT(rotationAngle(E) * 180.0 / M_PI, 0.1) << "rotation error (deg)";
 }
 
+TEST_F(IcpTest, ReportsTheSpreadOfBothResidualsForTheirWeighting) {
+  // The frontend weighs the photometric term by the ratio of the two
+  // spreads; color noise must show in the photometric one only.
+  const TsdfMap map = buildMap(20, 40, 0.01);
+  const Eigen::Isometry3d T_ref = traj_[30].T_world_cam;
+  const Eigen::Isometry3d T_true = traj_[31].T_world_cam;
+  const auto ref = preprocessFrame(test::syntheticFrame(scene_, cam_, T_ref), cam_, pp_);
+  RgbdFrame frame = test::syntheticFrame(scene_, cam_, T_true);
+  TrackingParams tp;
+  const IcpResult clean = trackPointToPlane(preprocessFrame(frame, cam_, pp_), modelAt(map, T_ref), T_ref, tp, {&ref, T_ref});
+  cv::Mat noise(frame.rgb.size(), CV_16SC3);
+  cv::randn(noise, 0, 20);  // 8 % of the range
+  cv::Mat noisy;
+  frame.rgb.convertTo(noisy, CV_16SC3);
+  noisy += noise;
+  noisy.convertTo(frame.rgb, CV_8UC3);
+  const auto pre_noisy = preprocessFrame(frame, cam_, pp_);
+  const IcpResult r = trackPointToPlane(pre_noisy, modelAt(map, T_ref), T_ref, tp, {&ref, T_ref});
+  const IcpResult geometry_only = trackPointToPlane(pre_noisy, modelAt(map, T_ref), T_ref, tp);
+  ASSERT_TRUE(clean.ok && r.ok && geometry_only.ok) << clean.failure << r.failure << geometry_only.failure;
+  EXPECT_GT(clean.photometric_mean_abs, 0.0);
+  // Exact frames still differ by the renderer's texture aliasing between
+  // views (0.025 here); the noise adds to that.
+  EXPECT_GT(r.photometric_mean_abs, 1.3 * clean.photometric_mean_abs);
+  EXPECT_NEAR(r.mean_abs_residual_m, clean.mean_abs_residual_m, 0.3 * clean.mean_abs_residual_m);
+  EXPECT_LT(clean.mean_abs_residual_m, 0.003);  // exact depth, a 1 cm map
+  EXPECT_EQ(geometry_only.photometric_mean_abs, 0.0);
+}
+
 TEST_F(IcpTest, FrameToFrameFallbackAloneFollowsANoisySequence) {
   // Each frame tracked against the previous one only (frameAsModel), with
   // the photometric term, never against a map: 40 noisy frames of the orbit

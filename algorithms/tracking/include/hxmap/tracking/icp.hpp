@@ -32,6 +32,11 @@ struct IcpResult {
   /// Share of the finest level's associations whose point-to-plane residual
   /// lies within TrackingParams::consistent_sigmas * sigma(z) of the model.
   double consistent_ratio = 0;
+  /// Robust spreads of the finest level's residuals (mean |r|, each clipped
+  /// at three times its Huber threshold): point-to-plane in meters,
+  /// photometric in intensity units (0 without photometric terms).
+  double mean_abs_residual_m = 0;
+  double photometric_mean_abs = 0;
   /// Why the pose, although usable (ok), is not good enough to fuse; empty
   /// when it is.
   std::string degraded;
@@ -58,6 +63,14 @@ struct PhotometricReference {
   /// 5-10 mm off the depth's, and the share of depth residuals within the
   /// noise gate fell from 97-100 % to 20-45 % on those frames.
   Eigen::Isometry3d T_depth_color = Eigen::Isometry3d::Identity();
+  /// When > 0, T_depth_color is instead taken from the motion being
+  /// estimated, in every Gauss-Newton step: the camera is assumed to move
+  /// uniformly from T_world_previous (the previous depth image's pose)
+  /// to the current estimate T, and the color image lies
+  /// color_offset_ratio (offset / frame interval, signed) of that motion
+  /// beyond T. color_offset_ratio 0: T_depth_color as given.
+  Eigen::Isometry3d T_world_previous = Eigen::Isometry3d::Identity();
+  double color_offset_ratio = 0.0;
 };
 
 /// `model[l]` is the model rendered at the reference pose for pyramid level l

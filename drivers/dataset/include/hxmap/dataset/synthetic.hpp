@@ -40,6 +40,19 @@ struct SyntheticParams {
   /// the ground truth but left out of rgb.txt and depth.txt, as a camera
   /// that drops frames. 0: none.
   int drop_every = 0;
+  /// A hand-held color camera's imperfections (all 0: an ideal camera
+  /// exposed at the depth's instant). The color image is exposed
+  /// color_delay_s after the depth (its stamp in rgb.txt says so, as an
+  /// unsynchronized sensor's does); its rows are read out one after the
+  /// other over rolling_shutter_s (top first, the stamp at the middle row);
+  /// each row integrates light over exposure_s (motion blur, 5 samples);
+  /// and auto exposure scales its brightness by up to +-gain_variation,
+  /// changing over a few seconds. Depth stays a global-shutter image at
+  /// the ground truth's stamp.
+  double color_delay_s = 0.0;
+  double rolling_shutter_s = 0.0;
+  double exposure_s = 0.0;
+  double gain_variation = 0.0;
   /// Camera positions (and look-at targets) scaled about the origin, for a
   /// scene scaled the same way (SyntheticScene::scaled).
   double scale = 1.0;
@@ -109,6 +122,12 @@ class SyntheticScene {
 /// Smooth camera trajectory (camera-to-world, stamps from fps).
 Trajectory syntheticTrajectory(const SyntheticParams& params);
 
+/// The trajectory's camera-to-world pose at `t_s` seconds from its start.
+Eigen::Isometry3d syntheticPose(const SyntheticParams& params, double t_s);
+
+/// True when the color camera has any of SyntheticParams' imperfections.
+bool hasColorEffects(const SyntheticParams& params);
+
 /// Peak linear (m/s) and angular (deg/s) speed of a trajectory, from
 /// consecutive poses.
 struct TrajectorySpeeds {
@@ -122,6 +141,8 @@ struct RenderedFrame {
   cv::Mat depth;       ///< CV_32F meters after the sensor model (== depth_true without noise)
 };
 
+/// Depth at T_world_cam; color there too, or, with color effects
+/// (hasColorEffects), along the trajectory around frame_index / fps.
 RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera& camera,
                           const Eigen::Isometry3d& T_world_cam, const SyntheticParams& params, int frame_index,
                           const ParallelFor& parallel = serialFor);

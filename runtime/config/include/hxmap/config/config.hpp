@@ -42,6 +42,7 @@ struct DatasetConfig {
 
 struct SyntheticConfig {
   int frames = 150;
+  double fps = 30.0;  ///< frame rate the trajectory is sampled at (lower: more motion per frame)
   int seed = 1;
   std::string scene = "room";         ///< room | quality
   std::string trajectory = "orbit";  ///< orbit | sweep | inspect
@@ -49,6 +50,13 @@ struct SyntheticConfig {
   bool noise = true;
   double noise_scale = 1.0;
   int missing_blobs_per_frame = 0;
+  /// The color camera's imperfections (drv::SyntheticParams): delay after
+  /// the depth, rolling-shutter readout, exposure (motion blur), auto
+  /// exposure's gain variation. All 0: ideal.
+  double color_delay_s = 0.0;
+  double rolling_shutter_s = 0.0;
+  double exposure_s = 0.0;
+  double gain_variation = 0.0;
 };
 
 struct EvalConfig {

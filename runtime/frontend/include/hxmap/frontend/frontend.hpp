@@ -147,6 +147,7 @@ struct FeedbackCounters {
 struct TrackingCounters {
   uint64_t velocity_retries = 0;  ///< frames tracked a second time from the constant-velocity guess
   uint64_t velocity_wins = 0;     ///< ... where that guess gave the better result
+  double photometric_scale_m = 0;  ///< the photometric weight the last frame was tracked with
   uint64_t relocalization_attempts = 0;  ///< lost frames matched against the keyframe database
   uint64_t relocalization_rejected = 0;  ///< PnP candidates the ICP check refused
   double relocalization_ms = 0;          ///< total over the attempts
@@ -273,6 +274,9 @@ class Frontend {
   /// just tracked there) as the hint.
   void renderModel(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
   int minValidPixels() const;
+  /// tracking.photometric_scale_m, or the median point-to-plane over
+  /// photometric residual spread of the last fused frames.
+  double photometricScale() const;
   void fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found);
   /// A frame got pose T (fused or only followed): the next frame is
   /// tracked from it.
@@ -314,6 +318,9 @@ class Frontend {
   bool velocity_valid_ = false;  ///< the last frame had a pose
   alg::TrackingStateMachine state_machine_;
   TrackingCounters tracking_counters_;
+  /// Point-to-plane over photometric residual spread of the last fused
+  /// frames (tracking.photometric_scale_from_residuals).
+  std::deque<double> photometric_ratios_;
   alg::KeyframeDatabase keyframe_db_;
   std::optional<size_t> lost_since_;  ///< trajectory index of the first frame of the current loss
   bool initialized_ = false;
