@@ -140,10 +140,14 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   EXPECT_GT(changed, 0u);
   // sigma_Neural reached the quality map for the blocks the job rendered.
   ASSERT_FALSE(o.result.neural_sigma.empty());
-  const alg::BlockQuality* q = fe.quality().find(o.result.neural_sigma.front().first);
-  if (q) {
-    EXPECT_GE(q->sigma_neural_m, 0.0f);
+  size_t scored = 0;
+  for (const auto& [key, sigma] : o.result.neural_sigma) {
+    const alg::BlockQuality* q = fe.quality().find(key);
+    if (q == nullptr) continue;  // rendered, but not a block the quality map scores
+    ++scored;
+    EXPECT_FLOAT_EQ(q->sigma_neural_m, std::max(0.0f, sigma)) << key.transpose();
   }
+  EXPECT_GT(scored, 0u) << "no block the job rendered is in the quality map";
   // The job's field joins the pose feedback's implicit channels: a window
   // of the keyframes that saw the ROI gets implicit residuals inside it.
   ASSERT_TRUE(o.surface);

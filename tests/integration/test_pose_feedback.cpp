@@ -75,7 +75,9 @@ TEST_F(PoseFeedbackLoop, RemovesInjectedDriftAndLeavesAGoodTrajectoryAlone) {
 
 TEST_F(PoseFeedbackLoop, SolveTimeLeavesOutTheSchedulersWaits) {
   // The real-time feedback thread's stop callback waits for slack between
-  // slices: the tally's solve time is the solver's own.
+  // slices: the tally's solve time is the solver's own. Not a timing
+  // assertion: sleep_for waits at least its duration, so a slow machine
+  // only widens the margin; it fails only when the waits are counted.
   FrontendParams p;
   p.quality_enabled = false;
   p.refine_enabled = false;

@@ -32,7 +32,12 @@ TEST(OpenNi2, CorruptRecordingIsAnErrorNamingTheFile) {
 TEST(OpenNi2, NoDeviceIsAClearError) {
   auto cam = OpenNi2Camera::open(OpenNi2Options{});
   if (cam) GTEST_SKIP() << "an OpenNI2 device is attached: " << (*cam)->name();
-  EXPECT_NE(cam.message().find("OpenNI2"), std::string::npos) << cam.message();
+  // Either no device is attached (what to check is named) or the OpenNI2
+  // runtime itself cannot start (its own reason is given).
+  const std::string& m = cam.message();
+  const bool no_device = m.rfind("OpenNI2: no device found", 0) == 0 && m.find("plugged in") != std::string::npos;
+  const bool no_runtime = m.rfind("OpenNI2: initialization failed: ", 0) == 0 && m.size() > 32;
+  EXPECT_TRUE(no_device || no_runtime) << m;
 }
 
 }  // namespace

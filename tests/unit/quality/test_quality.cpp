@@ -471,8 +471,20 @@ TEST(Quality, BadInputsAreIgnoredNotFatal) {
   ModelView small = m;
   small.depth = cv::Mat(10, 10, CV_32F, cv::Scalar(1.0f));
   EXPECT_EQ(quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &small}).samples, 0u);
-  quality.update(map, {0, Eigen::Isometry3f::Identity(), &f, &m});
-  for (const auto& s : quality.score(map.truncation())) {
+  // On a fused wall, the finite pixels of the bad frame are scored and the
+  // NaN, infinite and zero ones are not.
+  const cv::Mat wall = depthImage([](int, int) { return kWallZ; });
+  integrate(map, {wall, cv::Mat(), cv::Mat(), kCam, Eigen::Isometry3f::Identity()});
+  size_t finite = 0;
+  for (int v = 0; v < frame.rows; ++v) {
+    for (int u = 0; u < frame.cols; ++u) finite += std::isfinite(frame.at<float>(v, u)) && frame.at<float>(v, u) > 0;
+  }
+  const size_t samples = quality.update(map, {1, Eigen::Isometry3f::Identity(), &f, &m}).samples;
+  EXPECT_GT(samples, finite / 2);
+  EXPECT_LE(samples, finite);
+  const auto scores = quality.score(map.truncation());
+  EXPECT_FALSE(scores.empty());
+  for (const auto& s : scores) {
     for (float x : s.raw) EXPECT_TRUE(std::isfinite(x));
   }
 }
