@@ -74,6 +74,10 @@ std::string meshScoresText(const alg::MeshScores& s, const alg::MeshMetricsParam
 
 std::string meshMetricsText(const alg::MeshMetrics& m, const alg::MeshMetricsParams& p,
                             const alg::ObservedBy* observed) {
+  if (m.reconstruction_samples == 0 || m.ground_truth_samples == 0) {
+    return fmt::format("mesh vs ground truth: n/a ({} is empty)\n",
+                       m.reconstruction_samples == 0 ? "the reconstruction" : "the observed ground truth");
+  }
   const std::string excluded = observed == nullptr ? ""
                                : observed->min_abs_cos > 0
                                    ? fmt::format(
@@ -121,15 +125,25 @@ alg::MeshMetricsParams meshParams(const EvalConfig& e) {
   return p;
 }
 
-std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, double rpe_delta_s) {
+/// `scored` (when given) says whether ATE could be computed: "n/a" and
+/// the reason are printed instead of figures that would mean nothing.
+std::string trajectoryMetricsText(const Trajectory& est, const Trajectory& gt, double rpe_delta_s,
+                                  bool* scored = nullptr) {
+  if (scored) *scored = false;
   const alg::AteResult ate = alg::computeAte(est, gt);
-  if (ate.pairs == 0) return "ATE: fewer than 3 poses associate with the ground truth\n";
+  if (ate.pairs == 0) return "ATE: n/a (fewer than 3 poses associate with the ground truth)\n";
+  if (!std::isfinite(ate.rmse_m) || !std::isfinite(ate.max_m)) {
+    return "ATE: n/a (non-finite poses in the trajectory or the ground truth)\n";
+  }
+  if (scored) *scored = true;
+  std::string out = fmt::format("ATE RMSE {:.2f} cm (mean {:.2f}, median {:.2f}, max {:.2f} cm; {} poses)\n",
+                                100 * ate.rmse_m, 100 * ate.mean_m, 100 * ate.median_m, 100 * ate.max_m, ate.pairs);
   const alg::RpeResult rpe = alg::computeRpe(est, gt, static_cast<int64_t>(rpe_delta_s * 1e9));
-  return fmt::format(
-      "ATE RMSE {:.2f} cm (mean {:.2f}, median {:.2f}, max {:.2f} cm; {} poses)\n"
-      "RPE over {:.2f} s: translation RMSE {:.2f} cm, rotation RMSE {:.3f} deg ({} pairs)\n",
-      100 * ate.rmse_m, 100 * ate.mean_m, 100 * ate.median_m, 100 * ate.max_m, ate.pairs, rpe_delta_s,
-      100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
+  if (rpe.pairs == 0 || !std::isfinite(rpe.trans_rmse_m) || !std::isfinite(rpe.rot_rmse_deg)) {
+    return out + fmt::format("RPE over {:.2f} s: n/a (no pair of poses {:.2f} s apart)\n", rpe_delta_s, rpe_delta_s);
+  }
+  return out + fmt::format("RPE over {:.2f} s: translation RMSE {:.2f} cm, rotation RMSE {:.3f} deg ({} pairs)\n",
+                           rpe_delta_s, 100 * rpe.trans_rmse_m, rpe.rot_rmse_deg, rpe.pairs);
 }
 
 // Tracking's state changes as log lines (not one line per lost frame):
@@ -584,6 +598,21 @@ int runCommand(const RunOptions& o) {
   summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
   if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
   if (stopped) summary += "stopped early by a signal: outputs cover the frames processed until then\n";
+  // Honest exit codes: a run that mapped nothing (or lost more than the
+  // configured share) did not succeed, whatever it wrote.
+  const size_t processed = frontend.trajectory().size(), lost = frontend.lostFrames();
+  std::string failure;
+  if (processed > 0 && frontend.trackingCounts().tracked == 0) {
+    failure = fmt::format("nothing was mapped: none of the {} frames was tracked well enough to fuse", processed);
+  } else if (processed > 0 && static_cast<double>(lost) > c.runtime.max_lost_share * static_cast<double>(processed)) {
+    failure = fmt::format("{} of {} frames lost, more than runtime.max_lost_share ({:g})", lost, processed,
+                          c.runtime.max_lost_share);
+  }
+  if (!failure.empty()) {
+    summary += "result: failed, " + failure + "\n";
+    spdlog::error("{}", failure);
+    exit_code = 1;
+  }
   if (!o.trace.empty()) {
     if (auto s = trace.write(o.trace); !s) {
       spdlog::error("{}", s.message());
@@ -702,7 +731,7 @@ int demoCommand(const std::string& out_dir, const std::string& config) {
 }
 
 int evalCommand(const EvalOptions& o) {
-  bool did = false;
+  bool did = false, failed = false;  // failed: something given could not be scored
   if (!o.traj.empty() || !o.gt_traj.empty()) {
     if (o.traj.empty() || o.gt_traj.empty()) {
       spdlog::error("trajectory evaluation needs both --traj and --gt-traj");
@@ -722,7 +751,9 @@ int evalCommand(const EvalOptions& o) {
       }
       *out = parsed->poses;
     }
-    std::fputs(trajectoryMetricsText(est, gt, o.rpe_delta_s).c_str(), stdout);
+    bool scored = false;
+    std::fputs(trajectoryMetricsText(est, gt, o.rpe_delta_s, &scored).c_str(), stdout);
+    if (!scored) failed = true;
     did = true;
   }
   if (!o.mesh.empty() || !o.gt_mesh.empty()) {
@@ -750,11 +781,16 @@ int evalCommand(const EvalOptions& o) {
     }
     const auto m = alg::computeMeshMetrics(*rec, *gt, mp, observed.get(), makeParallelFor(0));
     std::fputs(meshMetricsText(m, mp, observed.get()).c_str(), stdout);
+    if (m.reconstruction_samples == 0 || m.ground_truth_samples == 0) failed = true;
     did = true;
   }
   if (!did) {
     spdlog::error("nothing to evaluate: give --traj/--gt-traj and/or --mesh/--gt-mesh");
     return 2;
+  }
+  if (failed) {
+    spdlog::error("evaluation: nothing could be scored for at least one of the inputs (see n/a above)");
+    return 1;
   }
   return 0;
 }
@@ -822,6 +858,17 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.max_pending_jobs = c.refine.max_pending_jobs;
   fp.feedback = c.feedback;
   return fp;
+}
+
+int runReportingExceptions(const std::function<int()>& command) {
+  try {
+    return command();
+  } catch (const std::exception& e) {
+    spdlog::error("internal error, please report it: {}", e.what());
+  } catch (...) {
+    spdlog::error("internal error, please report it: an exception of unknown type");
+  }
+  return 1;
 }
 
 }  // namespace hxmap::rt

@@ -2,6 +2,7 @@
 // 0 success, 1 failure while running, 2 bad usage or configuration.
 #pragma once
 
+#include <functional>
 #include <string>
 
 #include "hxmap/config/config.hpp"
@@ -70,6 +71,11 @@ struct EchoOptions {
 };
 /// Prints what hxmap publishes on a topic, one line per message (needs DDS).
 int echoCommand(const EchoOptions& options);
+
+/// Runs a command; an exception that reaches here (a bug: every expected
+/// failure is reported where it happens) is logged as an error with its
+/// message and gives exit code 1 instead of an abort.
+int runReportingExceptions(const std::function<int()>& command);
 
 /// The frontend's parameters from a configuration (what `hxmap run` uses).
 FrontendParams frontendParams(const HxmapConfig& config);

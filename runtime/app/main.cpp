@@ -108,11 +108,13 @@ int main(int argc, char** argv) {
 
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(verbose ? spdlog::level::debug : quiet ? spdlog::level::warn : spdlog::level::info);
-  if (*run_cmd) return hxmap::rt::runCommand(run);
-  if (*synth_cmd) return hxmap::rt::synthCommand(synth);
-  if (*demo_cmd) return hxmap::rt::demoCommand(demo_out, demo_config);
-  if (*eval_cmd) return hxmap::rt::evalCommand(eval);
-  if (*config_cmd) return hxmap::rt::configCommand(config_path);
-  if (*echo_cmd) return hxmap::rt::echoCommand(echo);
-  return 2;
+  return hxmap::rt::runReportingExceptions([&] {
+    if (*run_cmd) return hxmap::rt::runCommand(run);
+    if (*synth_cmd) return hxmap::rt::synthCommand(synth);
+    if (*demo_cmd) return hxmap::rt::demoCommand(demo_out, demo_config);
+    if (*eval_cmd) return hxmap::rt::evalCommand(eval);
+    if (*config_cmd) return hxmap::rt::configCommand(config_path);
+    if (*echo_cmd) return hxmap::rt::echoCommand(echo);
+    return 2;
+  });
 }

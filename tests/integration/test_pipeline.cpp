@@ -3,10 +3,13 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <stdexcept>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "commands.hpp"
+#include "hxmap/dataset/ply.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
@@ -296,6 +299,26 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
   EXPECT_TRUE(std::filesystem::file_size(out + "/mesh.ply") > 1000);
 }
 
+TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
+  const std::string data = test::tempDir("seq_dark"), out = test::tempDir("out_dark");
+  drv::SyntheticParams sp;
+  sp.frames = 4;
+  sp.camera = kCam;
+  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  // Every depth image all zero: no frame can be tracked or fused.
+  for (const auto& entry : std::filesystem::directory_iterator(data + "/depth")) {
+    ASSERT_TRUE(cv::imwrite(entry.path().string(), cv::Mat(kCam.height, kCam.width, CV_16U, cv::Scalar(0))));
+  }
+  RunOptions o;
+  o.dataset = data;
+  o.out_dir = out;
+  o.no_mesh_eval = true;
+  EXPECT_EQ(runCommand(o), 1);
+  std::ifstream summary(out + "/summary.txt");
+  const std::string text((std::istreambuf_iterator<char>(summary)), {});
+  EXPECT_NE(text.find("result: failed, nothing was mapped: none of the 4 frames"), std::string::npos) << text;
+}
+
 TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   RunOptions o;
   o.dataset = "/nonexistent/dataset";
@@ -305,6 +328,13 @@ TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   std::ofstream(cfg) << "tsdf:\n  voxel: 1\n";
   o.config = cfg;
   EXPECT_EQ(runCommand(o), 2);
+}
+
+TEST(RunCommand, AnExceptionThatReachesTheTopIsAnErrorExitNotAnAbort) {
+  EXPECT_EQ(runReportingExceptions([]() -> int { throw std::runtime_error("out of range"); }), 1);
+  EXPECT_EQ(runReportingExceptions([]() -> int { throw 42; }), 1);
+  EXPECT_EQ(runReportingExceptions([] { return 2; }), 2);
+  EXPECT_EQ(runReportingExceptions([] { return 0; }), 0);
 }
 
 TEST(SynthCommand, BadSceneTrajectoryOrScaleAreUsageErrorsAndWriteNothing) {
@@ -361,8 +391,38 @@ TEST(EvalCommand, IdenticalTrajectoriesAndRigidOffset) {
   EXPECT_EQ(evalCommand(o), 0);
   out = ::testing::internal::GetCapturedStdout();
   EXPECT_NE(out.find("ATE RMSE 0.00 cm"), std::string::npos) << out;
+  EXPECT_NE(out.find("RPE over 1.00 s: n/a"), std::string::npos) << "0.3 s of poses: " << out;
   o.traj = dir + "/missing.txt";
   EXPECT_EQ(evalCommand(o), 2);
+}
+
+TEST(EvalCommand, WhatCannotBeScoredIsNotApplicableAndAFailure) {
+  const std::string dir = test::tempDir("eval_na");
+  const std::string gt = writeText(dir + "/gt.txt", "1.0 0 0 0 0 0 0 1\n1.1 1 0 0 0 0 0 1\n1.2 1 1 0 0 0 0 1\n");
+  const std::string later = writeText(dir + "/later.txt", "5.0 0 0 0 0 0 0 1\n5.1 1 0 0 0 0 0 1\n5.2 1 1 0 0 0 0 1\n");
+  const std::string huge =
+      writeText(dir + "/huge.txt", "1.0 1e308 0 0 0 0 0 1\n1.1 -1e308 0 0 0 0 0 1\n1.2 1e308 1e308 0 0 0 0 1\n");
+  EvalOptions o;
+  o.gt_traj = gt;
+  for (const std::string& traj : {later, huge}) {
+    o.traj = traj;
+    ::testing::internal::CaptureStdout();
+    EXPECT_EQ(evalCommand(o), 1) << traj;
+    const std::string out = ::testing::internal::GetCapturedStdout();
+    EXPECT_NE(out.find("ATE: n/a"), std::string::npos) << out;
+    EXPECT_EQ(out.find("nan"), std::string::npos) << out;
+  }
+  EvalOptions m;
+  m.mesh = dir + "/empty.ply";
+  m.gt_mesh = dir + "/room.ply";
+  m.samples = 2000;
+  ASSERT_TRUE(drv::writePly(m.mesh, alg::TriangleMesh{}));
+  ASSERT_TRUE(drv::writePly(m.gt_mesh, drv::SyntheticScene::room().mesh()));
+  ::testing::internal::CaptureStdout();
+  EXPECT_EQ(evalCommand(m), 1);
+  const std::string out = ::testing::internal::GetCapturedStdout();
+  EXPECT_NE(out.find("n/a (the reconstruction is empty)"), std::string::npos) << out;
+  EXPECT_EQ(out.find("accuracy"), std::string::npos) << out;
 }
 
 }  // namespace

@@ -1,12 +1,15 @@
 #include "hxmap/dataset/dataset.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <tuple>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 #include <opencv2/calib3d.hpp>
@@ -145,25 +148,105 @@ Expected<std::unique_ptr<Dataset>> Dataset::open(const std::string& dir, const D
 }
 
 namespace {
-Expected<alg::PinholeCamera> readCalibrationYaml(const std::string& path) {
+struct Calibration {
+  alg::PinholeCamera camera;
+  double depth_scale = 5000.0;
+  double sensor_grazing_cos = 0.0;
+};
+
+// calibration.yaml, every value checked like the configuration's: all
+// problems reported together, each with the file, line and key.
+Expected<Calibration> readCalibrationYaml(const std::string& path) {
+  static const char* const kKeys[] = {"fx",          "fy",         "cx",        "cy", "width", "height",
+                                      "distortion",  "depth_scale", "sensor_grazing_cos"};
+  constexpr int kMaxSide = 8192;
+  YAML::Node n;
   try {
-    const YAML::Node n = YAML::LoadFile(path);
-    alg::PinholeCamera c;
-    c.fx = n["fx"].as<double>();
-    c.fy = n["fy"].as<double>();
-    c.cx = n["cx"].as<double>();
-    c.cy = n["cy"].as<double>();
-    c.width = n["width"].as<int>();
-    c.height = n["height"].as<int>();
-    if (n["distortion"]) {
-      const auto v = n["distortion"].as<std::vector<double>>();
-      if (v.size() != 5) return Error{path + ": distortion needs 5 values k1 k2 p1 p2 k3"};
-      std::copy(v.begin(), v.end(), c.distortion.begin());
-    }
-    return c;
+    n = YAML::LoadFile(path);
   } catch (const YAML::Exception& e) {
-    return Error{fmt::format("{}: {} (expected keys fx fy cx cy width height [distortion])", path, e.what())};
+    return Error{fmt::format("{}: {}", path, e.what())};
   }
+  if (!n.IsMap()) return Error{path + ": expected a map of keys fx fy cx cy width height [distortion] [depth_scale]"};
+  std::vector<std::string> problems;
+  auto where = [&](const YAML::Node& node, const std::string& key) {
+    return fmt::format("{}:{}: {}", path, node.Mark().line + 1, key);
+  };
+  for (const auto& kv : n) {
+    const std::string key = kv.first.as<std::string>("");
+    if (std::find_if(std::begin(kKeys), std::end(kKeys), [&](const char* k) { return key == k; }) == std::end(kKeys)) {
+      problems.push_back(fmt::format("{} is not a known key (known: fx fy cx cy width height distortion depth_scale "
+                                     "sensor_grazing_cos)",
+                                     where(kv.first, "'" + key + "'")));
+    }
+  }
+  auto number = [&](const char* key, bool required, double fallback) -> double {
+    const YAML::Node v = n[key];
+    if (!v) {
+      if (required) problems.push_back(fmt::format("{}: missing key '{}'", path, key));
+      return fallback;
+    }
+    try {
+      return v.as<double>();
+    } catch (const YAML::Exception&) {
+      problems.push_back(fmt::format("{} must be a number", where(v, key)));
+      return fallback;
+    }
+  };
+  Calibration c;
+  alg::PinholeCamera& cam = c.camera;
+  cam.fx = number("fx", true, 1.0);
+  cam.fy = number("fy", true, 1.0);
+  cam.cx = number("cx", true, 0.0);
+  cam.cy = number("cy", true, 0.0);
+  const double width = number("width", true, 1.0), height = number("height", true, 1.0);
+  c.depth_scale = number("depth_scale", false, 5000.0);
+  c.sensor_grazing_cos = number("sensor_grazing_cos", false, 0.0);
+  for (const auto& [key, value] : {std::pair{"fx", cam.fx}, {"fy", cam.fy}}) {
+    if (!(std::isfinite(value) && value > 0)) {
+      problems.push_back(fmt::format("{} must be a positive focal length in pixels, got {}", where(n[key], key), value));
+    }
+  }
+  for (const auto& [key, value] : {std::pair{"width", width}, {"height", height}}) {
+    if (!(value >= 1 && value <= kMaxSide && value == std::floor(value))) {
+      problems.push_back(fmt::format("{} must be a whole number of pixels in [1, {}], got {}", where(n[key], key),
+                                     kMaxSide, value));
+    }
+  }
+  cam.width = width >= 1 && width <= kMaxSide ? static_cast<int>(width) : 1;
+  cam.height = height >= 1 && height <= kMaxSide ? static_cast<int>(height) : 1;
+  for (const auto& [key, value, side] : {std::tuple{"cx", cam.cx, width}, {"cy", cam.cy, height}}) {
+    if (!(std::isfinite(value) && value >= 0 && value < side)) {
+      problems.push_back(
+          fmt::format("{} must lie inside the image, [0, {}), got {}", where(n[key], key), side, value));
+    }
+  }
+  if (!(std::isfinite(c.depth_scale) && c.depth_scale > 0)) {
+    problems.push_back(fmt::format("{} must be positive (raw depth units per meter), got {}",
+                                   where(n["depth_scale"], "depth_scale"), c.depth_scale));
+  }
+  if (!(c.sensor_grazing_cos >= 0 && c.sensor_grazing_cos < 1)) {
+    problems.push_back(fmt::format("{} must lie in [0, 1), got {}", where(n["sensor_grazing_cos"], "sensor_grazing_cos"),
+                                   c.sensor_grazing_cos));
+  }
+  if (const YAML::Node d = n["distortion"]) {
+    std::vector<double> v;
+    try {
+      v = d.as<std::vector<double>>();
+    } catch (const YAML::Exception&) {
+    }
+    if (v.size() != 5) {
+      problems.push_back(fmt::format("{} needs 5 numbers k1 k2 p1 p2 k3", where(d, "distortion")));
+    } else if (!std::all_of(v.begin(), v.end(), [](double x) { return std::isfinite(x); })) {
+      problems.push_back(fmt::format("{} must be finite", where(d, "distortion")));
+    } else {
+      std::copy(v.begin(), v.end(), cam.distortion.begin());
+    }
+  }
+  if (!problems.empty()) {
+    return Error{fmt::format("{} problem(s) in the camera calibration:\n{}", problems.size(),
+                             fmt::join(problems, "\n"))};
+  }
+  return c;
 }
 }  // namespace
 
@@ -218,21 +301,10 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
   if (fs::exists(calib)) {
     auto c = readCalibrationYaml(calib.string());
     if (!c) return Error{c.message()};
-    d.camera_ = *c;
+    d.camera_ = c->camera;
     d.camera_source_ = calib.string();
-    try {
-      const YAML::Node n = YAML::LoadFile(calib.string());
-      if (n["depth_scale"]) d.depth_scale_ = n["depth_scale"].as<double>();
-      if (n["sensor_grazing_cos"]) {
-        d.sensor_grazing_cos_ = n["sensor_grazing_cos"].as<double>();
-        if (!(d.sensor_grazing_cos_ >= 0 && d.sensor_grazing_cos_ < 1)) {
-          return Error{
-              fmt::format("{}: sensor_grazing_cos must lie in [0, 1), got {}", calib.string(), d.sensor_grazing_cos_)};
-        }
-      }
-    } catch (const YAML::Exception& e) {
-      return Error{fmt::format("{}: {}", calib.string(), e.what())};
-    }
+    d.depth_scale_ = c->depth_scale;
+    d.sensor_grazing_cos_ = c->sensor_grazing_cos;
   } else {
     for (int fr = 1; fr <= 3; ++fr) {
       if (name.find(fmt::format("freiburg{}", fr)) != std::string::npos) {

@@ -277,6 +277,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("deadline_margin_ms", c.runtime.deadline_margin_ms, 0, 1000);
   v.integer("shed_after_periods", c.runtime.shed_after_periods, 1, 100000);
   v.integer("background_nice", c.runtime.background_nice, 0, 19);
+  v.number("max_lost_share", c.runtime.max_lost_share, 0, 1);
 
   auto& g = c.rig;
   v.section("rig");

@@ -51,6 +51,37 @@ class BadInput : public ::testing::Test {
   fs::path rgb0_, depth0_;
 };
 
+TEST_F(BadInput, EveryBadCalibrationValueIsReportedTogetherWithItsKey) {
+  const fs::path calib = fs::path(dir_) / "calibration.yaml";
+  // Sizes far beyond any sensor (once an uncaught OpenCV exception when
+  // the undistortion maps were built), a NaN and an infinite focal length,
+  // a principal point outside the image, a zero depth scale, a non-finite
+  // distortion and an unknown key: one error naming each.
+  writeFile(calib,
+            "fx: .nan\nfy: .inf\ncx: -3\ncy: 10\nwidth: 200000\nheight: 200000\ndepth_scale: 0\n"
+            "distortion: [0.1, .nan, 0, 0, 0]\nfocal: 525\n");
+  auto d = Dataset::open(dir_, {});
+  ASSERT_FALSE(d);
+  const std::string& m = d.message();
+  EXPECT_NE(m.find("8 problem(s)"), std::string::npos) << m;
+  for (const char* key : {":1: fx", ":2: fy", ":3: cx", ":5: width", ":6: height", ":7: depth_scale",
+                          ":8: distortion", ":9: 'focal'"}) {
+    EXPECT_NE(m.find(calib.string() + key), std::string::npos) << key << " in\n" << m;
+  }
+  // A missing key and a value that is not a number.
+  writeFile(calib, "fx: 60\nfy: sixty\ncx: 31.5\nwidth: 64\nheight: 48\n");
+  d = Dataset::open(dir_, {});
+  ASSERT_FALSE(d);
+  EXPECT_NE(d.message().find(calib.string() + ":2: fy must be a number"), std::string::npos) << d.message();
+  EXPECT_NE(d.message().find("missing key 'cy'"), std::string::npos) << d.message();
+  // Within bounds, it opens with the values given.
+  writeFile(calib, "fx: 60\nfy: 61\ncx: 31.5\ncy: 23.5\nwidth: 64\nheight: 48\ndepth_scale: 1000\n");
+  d = Dataset::open(dir_, {});
+  ASSERT_TRUE(d) << d.message();
+  EXPECT_DOUBLE_EQ((*d)->camera().fy, 61.0);
+  EXPECT_DOUBLE_EQ((*d)->depthScale(), 1000.0);
+}
+
 TEST_F(BadInput, ATumFolderWithoutIntrinsicsIsAnErrorThatSaysWhatToAdd) {
   // A TUM-layout folder without calibration.yaml, whose name names no
   // freiburg preset (a renamed copy of a recording): no silent default.

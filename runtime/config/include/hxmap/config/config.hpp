@@ -76,6 +76,9 @@ struct RuntimeConfig {
   /// then gives the sensor and frontend threads the cores first. 0 = as
   /// the process.
   int background_nice = 10;
+  /// A run that lost more than this share of its frames exits with 1 (the
+  /// outputs are still written). 1 = only a run that fused no frame at all.
+  double max_lost_share = 1.0;
 };
 
 /// ROI refinement (paper 3.3): which jobs the frontend makes, and the
