@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <optional>
 
+#include <unistd.h>
+
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -205,6 +207,15 @@ int runCommand(const RunOptions& o) {
   if (o.camera.empty() && o.dataset.empty()) {
     spdlog::error("run: give --dataset FOLDER or --camera SPEC");
     return 2;
+  }
+  if (!o.trace.empty()) {
+    // Checked now, not after the run it would describe.
+    const fs::path dir = fs::path(o.trace).parent_path().empty() ? fs::path(".") : fs::path(o.trace).parent_path();
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec) || ::access(dir.c_str(), W_OK) != 0 || fs::is_directory(o.trace, ec)) {
+      spdlog::error("--trace {}: cannot write there (no such folder, not writable, or a folder)", o.trace);
+      return 2;
+    }
   }
   // A live camera: opened first, so a missing device fails before anything is written.
   std::unique_ptr<CameraSource> camera;
@@ -511,7 +522,9 @@ int runCommand(const RunOptions& o) {
   std::string summary = "hxmap run summary\n=================\n";
   summary += dataset ? fmt::format("dataset: {} ({} frames)\n", dataset->dir(), dataset->size())
                      : fmt::format("camera: {}\n", camera->name());
-  summary += fmt::format("frames: processed {}, unreadable skipped {}, keyframes {}\n", total_ms.size(), bad_frames,
+  summary += fmt::format("frames: processed {}, unreadable skipped {}, bad list or ground-truth lines skipped {}, "
+                         "keyframes {}\n",
+                         total_ms.size(), bad_frames, dataset ? dataset->skippedAtOpen().size() : 0,
                          frontend.keyframes());
   summary += trackingSummary(frontend);
   if (o.fuse_ground_truth) {

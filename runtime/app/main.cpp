@@ -29,7 +29,8 @@ int main(int argc, char** argv) {
   dataset_opt->excludes(camera_opt);
   run_cmd->add_option("--config", run.config, "YAML configuration (default: built-in defaults)");
   run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
-  run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames");
+  run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames")
+      ->check(CLI::Range(1, 1000000000));
   run_cmd->add_option("--camera-preset", run.camera_preset,
                       "intrinsics by name for a dataset without its own: fr1, fr2, fr3 (TUM freiburg 1/2/3) or kinect "
                       "(525, 319.5, 239.5)")
@@ -106,7 +107,13 @@ int main(int argc, char** argv) {
   echo_cmd->add_option("--domain", echo.domain_id, "DDS domain id (default: from the configuration)");
   echo_cmd->add_option("--prefix", echo.prefix, "topic prefix (default: from the configuration)");
 
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // --help and --version are 0; every usage error is hxmap's 2, not one
+    // of CLI11's own codes.
+    return app.exit(e) == 0 ? 0 : 2;
+  }
   spdlog::set_level(verbose ? spdlog::level::debug : quiet ? spdlog::level::warn : spdlog::level::info);
   return hxmap::rt::runReportingExceptions([&] {
     if (*run_cmd) return hxmap::rt::runCommand(run);

@@ -294,7 +294,7 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
   std::ifstream summary(out + "/summary.txt");
   const std::string text((std::istreambuf_iterator<char>(summary)), {});
   EXPECT_NE(text.find("processed 11"), std::string::npos) << text;
-  EXPECT_NE(text.find("unreadable skipped 1"), std::string::npos) << text;
+  EXPECT_NE(text.find("unreadable skipped 1, bad list or ground-truth lines skipped 0"), std::string::npos) << text;
   EXPECT_NE(text.find("ATE RMSE"), std::string::npos) << text;
   EXPECT_TRUE(std::filesystem::file_size(out + "/mesh.ply") > 1000);
 }
@@ -328,6 +328,16 @@ TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   std::ofstream(cfg) << "tsdf:\n  voxel: 1\n";
   o.config = cfg;
   EXPECT_EQ(runCommand(o), 2);
+  // A trace that could not be written is refused before the run, not after.
+  o.config.clear();
+  o.dataset = test::tempDir("seq_for_trace");
+  drv::SyntheticParams sp;
+  sp.frames = 2;
+  sp.camera = kCam;
+  ASSERT_TRUE(drv::writeSyntheticSequence(o.dataset, drv::SyntheticScene::room(), sp));
+  o.trace = "/nonexistent/folder/trace.json";
+  EXPECT_EQ(runCommand(o), 2);
+  EXPECT_FALSE(std::filesystem::exists(o.out_dir + "/summary.txt"));
 }
 
 TEST(RunCommand, AnExceptionThatReachesTheTopIsAnErrorExitNotAnAbort) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -426,15 +427,26 @@ class Loader : public Visitor {
       error(root_, "the configuration must be a mapping of sections (camera:, tsdf:, ...)");
       return;
     }
+    std::set<std::string> seen_sections;
     for (const auto& kv : root_) {
       const std::string name = kv.first.as<std::string>();
+      if (!seen_sections.insert(name).second) {
+        // YAML takes the first and drops the rest without a word.
+        error(kv.first, fmt::format("section '{}' appears twice", name));
+        continue;
+      }
       if (!sections_.count(name)) {
         error(kv.first, fmt::format("unknown section '{}' (known: {})", name, fmt::join(sections_, ", ")));
         continue;
       }
       if (!kv.second.IsMap()) continue;
+      std::set<std::string> seen_keys;
       for (const auto& kk : kv.second) {
         const std::string key = kk.first.as<std::string>();
+        if (!seen_keys.insert(key).second) {
+          error(kk.first, fmt::format("key '{}.{}' appears twice", name, key));
+          continue;
+        }
         if (!known_.count(name + "." + key)) {
           std::vector<std::string> keys;
           for (const auto& k : known_) {
@@ -529,6 +541,8 @@ Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::s
 }
 
 Expected<HxmapConfig> loadConfig(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) return Error{path + ": is a folder, not a configuration file"};
   std::ifstream in(path);
   if (!in) return Error{path + ": configuration file not found or not readable"};
   std::stringstream ss;

@@ -64,6 +64,20 @@ TEST(Config, MissingFileIsNamed) {
   EXPECT_NE(c.message().find("/nonexistent/hxmap.yaml"), std::string::npos);
 }
 
+TEST(Config, AFolderAndDuplicateKeysAreErrorsNotSilentDefaults) {
+  auto dir = loadConfig(::testing::TempDir());
+  ASSERT_FALSE(dir);
+  EXPECT_NE(dir.message().find("is a folder, not a configuration file"), std::string::npos) << dir.message();
+  // YAML would keep the first of each and drop the rest without a word.
+  auto dup = loadConfigFromString(
+      "tsdf:\n  voxel_size_m: 0.02\n  voxel_size_m: 0.01\ncamera:\n  fx: 500\ntsdf:\n  truncation_m: 0.08\n",
+      "dup.yaml");
+  ASSERT_FALSE(dup);
+  EXPECT_NE(dup.message().find("dup.yaml:3: key 'tsdf.voxel_size_m' appears twice"), std::string::npos)
+      << dup.message();
+  EXPECT_NE(dup.message().find("dup.yaml:6: section 'tsdf' appears twice"), std::string::npos) << dup.message();
+}
+
 TEST(Config, EveryPresetLoadsAndDefaultMatchesTheStructs) {
   const std::filesystem::path dir = std::filesystem::path(HXMAP_SOURCE_DIR) / "config";
   int presets = 0;
