@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include "hxmap/camera/camera_source.hpp"
@@ -509,14 +510,21 @@ int runCommand(const RunOptions& o) {
   const std::string traj_path = (fs::path(o.out_dir) / "trajectory.txt").string();
   const std::string mesh_path = (fs::path(o.out_dir) / "mesh.ply").string();
   int exit_code = first_error.empty() ? 0 : 1;
+  std::vector<std::string> written, not_written;
   if (auto s = drv::writeTextFile(traj_path, drv::formatTumTrajectory(frontend.trajectory())); !s) {
     spdlog::error("{}", s.message());
     exit_code = 1;
+    not_written.push_back(traj_path);
+  } else {
+    written.push_back(traj_path);
   }
   const alg::TriangleMesh mesh = frontend.mesh(c.mesh);
   if (auto s = drv::writePly(mesh_path, mesh); !s) {
     spdlog::error("{}", s.message());
     exit_code = 1;
+    not_written.push_back(mesh_path);
+  } else {
+    written.push_back(mesh_path);
   }
 
   std::string summary = "hxmap run summary\n=================\n";
@@ -608,7 +616,8 @@ int runCommand(const RunOptions& o) {
       summary += fmt::format("quality: indicator images per keyframe, rois.ply and blocks.csv in {}\n", o.save_quality);
     }
   }
-  summary += fmt::format("outputs: {}, {}\n", traj_path, mesh_path);
+  summary += fmt::format("outputs: {}\n", written.empty() ? std::string("none") : fmt::format("{}", fmt::join(written, ", ")));
+  if (!not_written.empty()) summary += fmt::format("not written (see the errors): {}\n", fmt::join(not_written, ", "));
   if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
   if (stopped) summary += "stopped early by a signal: outputs cover the frames processed until then\n";
   // Honest exit codes: a run that mapped nothing (or lost more than the

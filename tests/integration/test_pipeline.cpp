@@ -319,6 +319,26 @@ TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
   EXPECT_NE(text.find("result: failed, nothing was mapped: none of the 4 frames"), std::string::npos) << text;
 }
 
+TEST(RunCommand, AnOutputThatCannotBeWrittenLeavesNoTemporaryAndIsNotListed) {
+  const std::string data = test::tempDir("seq_out"), out = test::tempDir("out_blocked");
+  drv::SyntheticParams sp;
+  sp.frames = 3;
+  sp.camera = kCam;
+  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  // A folder where the mesh should go: the rename onto it fails.
+  std::filesystem::create_directories(out + "/mesh.ply/keep");
+  RunOptions o;
+  o.dataset = data;
+  o.out_dir = out;
+  o.no_mesh_eval = true;
+  EXPECT_EQ(runCommand(o), 1);
+  EXPECT_FALSE(std::filesystem::exists(out + "/mesh.ply.tmp"));
+  std::ifstream summary(out + "/summary.txt");
+  const std::string text((std::istreambuf_iterator<char>(summary)), {});
+  EXPECT_NE(text.find("outputs: " + out + "/trajectory.txt\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("not written (see the errors): " + out + "/mesh.ply"), std::string::npos) << text;
+}
+
 TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   RunOptions o;
   o.dataset = "/nonexistent/dataset";

@@ -17,11 +17,21 @@ Status writeTextFile(const std::string& path, const std::string& text) {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) return Error{path + ": cannot open for writing (does the folder exist and is it writable?)"};
     out.write(text.data(), static_cast<std::streamsize>(text.size()));
-    if (!out) return Error{path + ": write failed (disk full?)"};
+    out.flush();
+    if (!out) {
+      out.close();
+      std::error_code ignored;
+      std::filesystem::remove(tmp, ignored);  // no half-written leftover beside the outputs
+      return Error{path + ": write failed (disk full?)"};
+    }
   }
   std::error_code ec;
   std::filesystem::rename(tmp, path, ec);
-  if (ec) return Error{path + ": cannot rename temporary file: " + ec.message()};
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(tmp, ignored);
+    return Error{path + ": cannot rename temporary file: " + ec.message()};
+  }
   return Status::ok();
 }
 
