@@ -383,8 +383,11 @@ int runCommand(const RunOptions& o) {
       auto frame = dataset->load(frames[k]);
       if (!frame) {
         if (!dopt.skip_bad) {
-          spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
-          return 1;
+          // As offline: what comes before the bad frame is still mapped
+          // and written, and the run ends with 1.
+          first_error = frame.message() + " (use --skip-bad to skip unreadable frames)";
+          spdlog::error("{}; playing the {} frames before it", first_error, loaded.size());
+          break;
         }
         ++bad_frames;
         spdlog::warn("skipped frame {}: {}", frames[k], frame.message());

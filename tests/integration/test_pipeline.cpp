@@ -297,6 +297,19 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
   EXPECT_NE(text.find("unreadable skipped 1, bad list or ground-truth lines skipped 0"), std::string::npos) << text;
   EXPECT_NE(text.find("ATE RMSE"), std::string::npos) << text;
   EXPECT_TRUE(std::filesystem::file_size(out + "/mesh.ply") > 1000);
+
+  // Played in real time, the frames before the bad one are mapped and
+  // written too, and the run ends with 1.
+  const std::string out_rt = test::tempDir("out_rt");
+  o.out_dir = out_rt;
+  o.skip_bad = false;
+  o.realtime = true;
+  EXPECT_EQ(runCommand(o), 1);
+  std::ifstream rt_summary(out_rt + "/summary.txt");
+  const std::string rt_text((std::istreambuf_iterator<char>(rt_summary)), {});
+  EXPECT_NE(rt_text.find("processed 5,"), std::string::npos) << rt_text;
+  EXPECT_NE(rt_text.find("stopped early: "), std::string::npos) << rt_text;
+  EXPECT_TRUE(std::filesystem::exists(out_rt + "/trajectory.txt"));
 }
 
 TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
