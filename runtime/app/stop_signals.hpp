@@ -1,4 +1,4 @@
-// SIGINT/SIGTERM handling shared by the long-running commands.
+// SIGINT/SIGTERM/SIGHUP handling shared by the long-running commands.
 #pragma once
 
 #include <atomic>
@@ -7,7 +7,9 @@
 namespace hxmap::rt {
 
 // SIGINT/SIGTERM ask the run to stop: outputs for what was processed are
-// still written and the exit code stays 0.
+// still written and the exit code stays 0. SIGHUP (the terminal or the ssh
+// session that started the run went away) does the same instead of killing
+// the process with nothing written.
 inline std::atomic<bool> g_stop{false};
 extern "C" inline void onStopSignal(int) { g_stop.store(true); }
 
@@ -20,16 +22,18 @@ class StopSignals {
     sigemptyset(&sa.sa_mask);
     sigaction(SIGINT, &sa, &old_int_);
     sigaction(SIGTERM, &sa, &old_term_);
+    sigaction(SIGHUP, &sa, &old_hup_);
   }
   ~StopSignals() {
     sigaction(SIGINT, &old_int_, nullptr);
     sigaction(SIGTERM, &old_term_, nullptr);
+    sigaction(SIGHUP, &old_hup_, nullptr);
   }
   StopSignals(const StopSignals&) = delete;
   StopSignals& operator=(const StopSignals&) = delete;
 
  private:
-  struct sigaction old_int_ {}, old_term_ {};
+  struct sigaction old_int_ {}, old_term_ {}, old_hup_ {};
 };
 
 }  // namespace hxmap::rt

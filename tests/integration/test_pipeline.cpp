@@ -1,6 +1,7 @@
 // The frontend end to end on synthetic sequences with exact ground truth,
 // including frames with no depth and corrupt frames.
 #include <algorithm>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -9,6 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "commands.hpp"
+#include "stop_signals.hpp"
 #include "hxmap/dataset/ply.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
@@ -350,6 +352,19 @@ TEST(RunCommand, AnOutputThatCannotBeWrittenLeavesNoTemporaryAndIsNotListed) {
   const std::string text((std::istreambuf_iterator<char>(summary)), {});
   EXPECT_NE(text.find("outputs: " + out + "/trajectory.txt\n"), std::string::npos) << text;
   EXPECT_NE(text.find("not written (see the errors): " + out + "/mesh.ply"), std::string::npos) << text;
+}
+
+TEST(RunCommand, HangUpStopsTheRunLikeTermination) {
+  // An ssh session that drops sends SIGHUP: the run stops and writes its
+  // outputs instead of dying with nothing written.
+  const StopSignals signals;
+  EXPECT_FALSE(g_stop.load());
+  ASSERT_EQ(std::raise(SIGHUP), 0);
+  EXPECT_TRUE(g_stop.load());
+  g_stop.store(false);
+  ASSERT_EQ(std::raise(SIGTERM), 0);
+  EXPECT_TRUE(g_stop.load());
+  g_stop.store(false);
 }
 
 TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
