@@ -477,11 +477,12 @@ int runCommand(const RunOptions& o) {
         break;
       }
     }
-    // Offline, ROI jobs run to their end right after the keyframe that made
-    // them, and the pose-feedback window is solved on each new keyframe
-    // (deterministic; --realtime runs both on background threads).
+    // Offline, ROI jobs run to their iteration cap right after the keyframe
+    // that made them, and the pose-feedback window is solved on each new
+    // keyframe: no wall-clock budget, so the outputs do not depend on the
+    // machine or its load (--realtime runs both on background threads).
     for (const RefineJob& job : frontend.takeRefineJobs()) {
-      const RefineOutcome outcome = runRefineJob(job, fp.implicit);
+      const RefineOutcome outcome = runRefineJob(job, fp.implicit, RefineBudget::kIterationsOnly);
       frontend.applyRefinement(outcome);
       refine.add(outcome);
     }

@@ -730,7 +730,7 @@ std::vector<RefineJob> Frontend::takeRefineJobs() {
   return out;
 }
 
-RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params) {
+RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params, RefineBudget budget) {
   using Clock = std::chrono::steady_clock;
   auto ms = [](Clock::time_point a, Clock::time_point b) {
     return std::chrono::duration<double, std::milli>(b - a).count();
@@ -741,7 +741,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   alg::RoiRefiner refiner(*job.snapshot, job.roi.box_world, job.keyframes, params);
   const auto t1 = Clock::now();
   while (refiner.iterate(std::max(1, params.slice_iterations))) {
-    if (ms(t1, Clock::now()) >= params.time_budget_ms) {
+    if (budget == RefineBudget::kIterationsAndTime && ms(t1, Clock::now()) >= params.time_budget_ms) {
       out.out_of_time = true;
       break;
     }

@@ -91,10 +91,17 @@ struct RefineOutcome {
   std::shared_ptr<const alg::FieldSurface> surface;
 };
 
-/// Runs a job to its end on the calling thread, within the job's iteration
-/// cap and time budget (offline runs and benchmarks; the real-time runtime
-/// runs jobs in slices under its scheduler instead).
-RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params);
+/// Whether a job run to its end also stops at params.time_budget_ms of
+/// wall time (benchmarks, to bound a job's cost) or only at its iteration
+/// cap (offline runs: the same input then gives the same map and
+/// trajectory on any machine and under any load).
+enum class RefineBudget { kIterationsAndTime, kIterationsOnly };
+
+/// Runs a job to its end on the calling thread (offline runs and
+/// benchmarks; the real-time runtime runs jobs in slices under its
+/// scheduler instead).
+RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params,
+                           RefineBudget budget = RefineBudget::kIterationsAndTime);
 
 /// kKeyframe runs on keyframes only (0 ms on other frames): quality
 /// scoring, refinement jobs and the keyframe database's features.
