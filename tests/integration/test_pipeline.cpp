@@ -312,7 +312,9 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
   EXPECT_EQ(runCommand(o), 1);
   std::ifstream rt_summary(out_rt + "/summary.txt");
   const std::string rt_text((std::istreambuf_iterator<char>(rt_summary)), {});
-  EXPECT_NE(rt_text.find("processed 5,"), std::string::npos) << rt_text;
+  // The 5 frames before the bad one reach the runtime; how many the
+  // frontend keeps up with depends on the machine (sanitizers drop some).
+  EXPECT_NE(rt_text.find("frames: in 5,"), std::string::npos) << rt_text;
   EXPECT_NE(rt_text.find("stopped early: "), std::string::npos) << rt_text;
   EXPECT_TRUE(std::filesystem::exists(out_rt + "/trajectory.txt"));
 }
