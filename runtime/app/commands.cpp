@@ -192,6 +192,19 @@ std::string trackingSummary(const Frontend& frontend) {
       t.velocity_retries, t.velocity_wins, t.photometric_scale_m);
 }
 
+std::string loopClosureSummary(const Frontend& frontend) {
+  const LoopClosureCounters& l = frontend.loopClosureCounters();
+  return fmt::format(
+      "loop closure: {} keyframes compared with older ones ({:.1f} ms each), {} candidates: {} refused by the ICP "
+      "check, {} refused by the pose graph, {} already consistent, {} closed (largest correction {:.1f} cm, {:.2f} "
+      "deg); pose graph {} keyframes, cost {:.1f} -> {:.1f}, {:.1f} ms solving; map rebuilt {} times from {} "
+      "keyframe observations in {:.0f} ms; {} refinement results dropped as stale\n",
+      l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.candidates, l.refused_icp,
+      l.refused_graph, l.consistent, l.closures, 100 * l.largest_correction_m, l.largest_correction_deg,
+      frontend.poseGraph().nodes().size(), l.cost_before, l.cost_after, l.solve_ms, l.closures, l.keyframes_rebuilt,
+      l.rebuild_ms, l.stale_refinements);
+}
+
 }  // namespace
 
 int runCommand(const RunOptions& o) {
@@ -298,6 +311,12 @@ int runCommand(const RunOptions& o) {
 
   const ParallelFor parallel = makeParallelFor(c.runtime.threads);
   FrontendParams fp = frontendParams(c);
+  if (realtime && fp.loop_closure.enabled) {
+    // Detection, verification and the map's rebuild run inline on the
+    // keyframe today: tens of ms to seconds, more than a frame's deadline.
+    spdlog::info("loop closure is off in real-time runs (it runs in offline runs only, for now)");
+    fp.loop_closure.enabled = false;
+  }
   Frontend frontend(cam, fp, parallel);
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
@@ -356,8 +375,10 @@ int runCommand(const RunOptions& o) {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
   };
   TrackingLog tracking_log;
+  Trajectory live;  // each frame's pose as it was when the frame was processed (published live)
   auto tally = [&](const FrameResult& r) {
     tracking_log.add(r);
+    live.push_back({r.stamp_ns, r.T_world_cam});
     double sum = 0;
     for (int s = 0; s < kStageCount; ++s) {
       // Quality runs on keyframes only: its row is per keyframe.
@@ -522,6 +543,16 @@ int runCommand(const RunOptions& o) {
   } else {
     written.push_back(traj_path);
   }
+  if (fp.loop_closure.enabled) {
+    const std::string live_path = (fs::path(o.out_dir) / "trajectory_live.txt").string();
+    if (auto s = drv::writeTextFile(live_path, drv::formatTumTrajectory(live)); !s) {
+      spdlog::error("{}", s.message());
+      exit_code = 1;
+      not_written.push_back(live_path);
+    } else {
+      written.push_back(live_path);
+    }
+  }
   const alg::TriangleMesh mesh = frontend.mesh(c.mesh);
   if (auto s = drv::writePly(mesh_path, mesh); !s) {
     spdlog::error("{}", s.message());
@@ -564,7 +595,13 @@ int runCommand(const RunOptions& o) {
                            c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
   }
   if (feedback) summary += feedback->tally().text(frontend.feedbackCounters(), fp.feedback);
-  if (!ground_truth.empty()) summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
+  if (fp.loop_closure.enabled) summary += loopClosureSummary(frontend);
+  if (!ground_truth.empty()) {
+    summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
+    if (frontend.loopClosureCounters().closures > 0) {
+      summary += "as published live (trajectory_live.txt):\n" + trajectoryMetricsText(live, ground_truth, c.eval.rpe_delta_s);
+    }
+  }
   const fs::path gt_mesh_path = dataset ? fs::path(dataset->dir()) / "gt_mesh.ply" : fs::path();
   if (dataset && !o.no_mesh_eval && fs::exists(gt_mesh_path)) {
     auto gt_mesh = drv::readPly(gt_mesh_path.string());
@@ -671,8 +708,9 @@ int synthCommand(const SynthOptions& o) {
     return 2;
   }
   p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
-  if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect" && p.trajectory != "fast") {
-    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast", p.trajectory);
+  if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect" && p.trajectory != "fast" &&
+      p.trajectory != "loop") {
+    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast, loop", p.trajectory);
     return 2;
   }
   if (!o.blackout.empty()) {
@@ -883,6 +921,8 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.keyframe_images = c.refine.keyframe_images;
   fp.max_pending_jobs = c.refine.max_pending_jobs;
   fp.feedback = c.feedback;
+  fp.loop_closure = c.loop_closure;
+  fp.odometry_bias << 0.0, c.eval.odometry_bias_deg * M_PI / 180.0, 0.0, c.eval.odometry_bias_m, 0.0, 0.0;
   return fp;
 }
 

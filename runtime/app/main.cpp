@@ -61,7 +61,7 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
   synth_cmd->add_option("--fps", synth.fps,
                         "frame rate the trajectory is sampled at (default 30; 10: three times the motion per frame)");
-  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep, inspect or fast (hand-held, jerky)");
+  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep, inspect, fast (hand-held, jerky) or loop (10 s laps looking out at the walls)");
   synth_cmd->add_option("--blackout", synth.blackout,
                         "START_S:DURATION_S: no depth and black color for that long (the camera keeps moving)");
   synth_cmd->add_option("--drop-every", synth.drop_every,

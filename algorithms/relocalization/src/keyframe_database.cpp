@@ -130,7 +130,7 @@ void KeyframeDatabase::evictOne() {
 
 std::vector<RelocalizationCandidate> KeyframeDatabase::query(const FrameFeatures& frame, const PinholeCamera& camera,
                                                              const Eigen::Isometry3d& near, uint64_t round,
-                                                             std::string* why) const {
+                                                             std::string* why, uint32_t max_id) const {
   std::vector<RelocalizationCandidate> out;
   auto fail = [&](const std::string& reason) {
     if (why) *why = reason;
@@ -141,14 +141,17 @@ std::vector<RelocalizationCandidate> KeyframeDatabase::query(const FrameFeatures
     return fail("too few features in the frame (" + std::to_string(frame.descriptors.rows) + ")");
   }
   // Which keyframes: the nearest to `near`, then a turn of the rest.
-  std::vector<size_t> order(keyframes_.size());
-  std::iota(order.begin(), order.end(), size_t{0});
+  std::vector<size_t> order;
+  for (size_t i = 0; i < keyframes_.size(); ++i) {
+    if (keyframes_[i].id <= max_id) order.push_back(i);
+  }
+  if (order.empty()) return fail("no keyframe old enough");
   std::vector<size_t> chosen;
   if (params_.candidates <= 0 || static_cast<int>(order.size()) <= params_.candidates) {
     chosen = order;
   } else {
     std::vector<double> d(keyframes_.size());
-    for (size_t i = 0; i < keyframes_.size(); ++i) d[i] = poseDistance(near, keyframes_[i].T_world_cam);
+    for (size_t i : order) d[i] = poseDistance(near, keyframes_[i].T_world_cam);
     std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
     const size_t nearest = static_cast<size_t>(params_.candidates) / 2;
     chosen.assign(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(nearest));
@@ -223,7 +226,7 @@ std::vector<RelocalizationCandidate> KeyframeDatabase::query(const FrameFeatures
   }
   std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.pnp_inliers > b.pnp_inliers; });
   if (out.empty()) {
-    return fail("no keyframe agrees (" + std::to_string(chosen.size()) + " of " + std::to_string(keyframes_.size()) +
+    return fail("no keyframe agrees (" + std::to_string(chosen.size()) + " of " + std::to_string(order.size()) +
                 " matched; best " + std::to_string(best_matches) + " matches, " + std::to_string(best_inliers) +
                 " PnP inliers)");
   }

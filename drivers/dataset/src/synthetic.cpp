@@ -437,6 +437,15 @@ Eigen::Isometry3d syntheticPose(const SyntheticParams& params, double t) {
     const double x = -1.1 + 2.2 * (0.5 - 0.5 * std::cos(0.3 * t));  // back and forth along the wall
     eye = {x, -1.1 + 0.05 * std::sin(1.3 * t), 1.25 + 0.1 * std::sin(0.9 * t)};
     target = {x + 0.5 * std::sin(0.7 * t), 1.5, 0.7};
+  } else if (params.trajectory == "loop") {
+    // Laps of 10 s on a 0.3 m circle in the middle of the room, looking
+    // out and down at the walls and the floor (36 deg/s of yaw, 0.2 m/s): a wall seen at the
+    // start is out of view until the lap ends, so drift shows when the
+    // camera comes back (630 frames at 30 FPS make two laps).
+    const double phi = -M_PI / 2 + 2.0 * M_PI * t / 10.0;
+    const Eigen::Vector3d out(std::cos(phi), std::sin(phi), 0.0);
+    eye = Eigen::Vector3d(0.0, 0.0, 1.2 + 0.1 * std::sin(0.9 * t)) + 0.3 * out;
+    target = eye + 1.5 * out + Eigen::Vector3d(0.0, 0.0, -0.85 + 0.15 * std::sin(0.5 * t));
   } else if (params.trajectory == "fast") {
     // Around the table like the orbit, in surges: the angle's rate swings
     // between -0.24 and 0.84 rad/s (about 1.1 m/s along the circle and as

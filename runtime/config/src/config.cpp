@@ -147,6 +147,19 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("max_icp_correction_m", l.max_icp_correction_m, 0.001, 10);
   v.number("max_icp_correction_deg", l.max_icp_correction_deg, 0.01, 180);
 
+  auto& lc = c.loop_closure;
+  v.section("loop_closure");
+  v.boolean("enabled", lc.enabled);
+  v.integer("min_keyframe_gap", lc.min_keyframe_gap, 1, 1000000);
+  v.number("odometry_sigma_m", lc.odometry_sigma_m, 1e-5, 10);
+  v.number("odometry_sigma_deg", lc.odometry_sigma_deg, 1e-4, 90);
+  v.number("loop_sigma_m", lc.loop_sigma_m, 1e-5, 10);
+  v.number("loop_sigma_deg", lc.loop_sigma_deg, 1e-4, 90);
+  v.number("gate_chi2", lc.gate_chi2, 0.1, 1e6);
+  v.number("min_correction_m", lc.min_correction_m, 0, 10);
+  v.number("min_correction_deg", lc.min_correction_deg, 0, 180);
+  v.integer("max_stored_keyframes", lc.max_stored_keyframes, 2, 100000);
+
   auto& q = c.quality;
   v.section("quality");
   v.boolean("enabled", c.quality_enabled);
@@ -256,7 +269,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("fps", c.synthetic.fps, 1, 1000);
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);
   v.choice("scene", c.synthetic.scene, {"room", "quality"});
-  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast"});
+  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast", "loop"});
   v.number("scale", c.synthetic.scale, 0.05, 20);
   v.boolean("noise", c.synthetic.noise);
   v.number("noise_scale", c.synthetic.noise_scale, 0, 100);
@@ -271,6 +284,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("threshold_fine_m", c.eval.threshold_fine_m, 1e-4, 1);
   v.number("threshold_coarse_m", c.eval.threshold_coarse_m, 1e-4, 10);
   v.number("rpe_delta_s", c.eval.rpe_delta_s, 0.001, 1000);
+  v.number("odometry_bias_deg", c.eval.odometry_bias_deg, -10, 10);
+  v.number("odometry_bias_m", c.eval.odometry_bias_m, -1, 1);
 
   v.section("runtime");
   v.integer("threads", c.runtime.threads, 0, 1024);

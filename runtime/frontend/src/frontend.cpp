@@ -165,6 +165,9 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
   // 5. Keyframes by motion and time.
   if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, r.stamp_ns, params_.tracking,
                                           last_kf_depth_m_, params_.tsdf.voxel_size_m)) {
+    const Eigen::Isometry3d T_previous_kf = T_last_kf_;
+    const alg::PreprocessedFrame previous_kf = keyframe_reference_;  // headers
+    const Eigen::Isometry3d T_previous_kf_color = T_keyframe_color_;
     r.keyframe = true;
     r.keyframe_id = static_cast<uint32_t>(keyframes_);
     if (params_.feedback.enabled)
@@ -187,11 +190,21 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
     }
     if (params_.relocalization.enabled) {
       double features_ms = 0;
+      alg::FrameFeatures features;
       {
         StageTimer t(features_ms);
-        addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
+        features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
       }
       r.stage_ms[kKeyframe] += features_ms;
+      if (params_.loop_closure.enabled) {
+        double loop_ms = 0;
+        {
+          StageTimer t(loop_ms);
+          closeLoop(r.keyframe_id, features, previous_kf, T_previous_kf, T_previous_kf_color, T);
+        }
+        r.stage_ms[kKeyframe] += loop_ms;
+        r.T_world_cam = T;
+      }
     }
   }
   initialized_ = true;
@@ -356,15 +369,17 @@ alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::Ic
   return d;
 }
 
-void Frontend::addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
-                                     const Eigen::Isometry3d& T_world_cam) {
-  if (!frame.has_color || frame.intensity.empty()) return;  // no texture to describe
+alg::FrameFeatures Frontend::addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
+                                                   const Eigen::Isometry3d& T_world_cam) {
+  if (!frame.has_color || frame.intensity.empty()) return {};  // no texture to describe
   const auto t0 = std::chrono::steady_clock::now();
   cv::Mat gray;
   frame.intensity.convertTo(gray, CV_8U, 255.0);
-  keyframe_db_.add(id, alg::extractFeatures(gray, frame.depth_m, camera_, params_.relocalization), T_world_cam);
+  alg::FrameFeatures features = alg::extractFeatures(gray, frame.depth_m, camera_, params_.relocalization);
+  keyframe_db_.add(id, features, T_world_cam);
   tracking_counters_.keyframe_features_ms +=
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return features;
 }
 
 bool Frontend::relocalize(const alg::PreprocessedFrame& pre, const alg::TrackingParams& tp, alg::IcpResult& verified,
@@ -711,6 +726,7 @@ void Frontend::makeRefineJobs(uint32_t keyframe_id) {
     if (job.keyframes.empty() || static_cast<int>(job.keyframes.size()) < params_.min_job_keyframes) continue;
     job.id = next_job_id_++;
     job.keyframe_id = keyframe_id;
+    job.map_epoch = map_epoch_;
     job.roi = roi;
     job.snapshot = std::make_shared<const alg::TsdfMap>(alg::copyBlocks(map_, roi.box_world));
     for (const auto& key : roi.blocks) block_submitted_[alg::packBlockKey(key)] = keyframe_id;
@@ -737,6 +753,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   };
   RefineOutcome out;
   out.job_id = job.id;
+  out.map_epoch = job.map_epoch;
   const auto t0 = Clock::now();
   alg::RoiRefiner refiner(*job.snapshot, job.roi.box_world, job.keyframes, params);
   const auto t1 = Clock::now();
@@ -756,6 +773,10 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
 }
 
 alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
+  if (outcome.map_epoch != map_epoch_) {  // cut from a map a loop closure has since rebuilt
+    ++loop_counters_.stale_refinements;
+    return {};
+  }
   for (const auto& [key, sigma] : outcome.result.neural_sigma) quality_.setNeuralSigma(key, sigma);
   if (outcome.surface && outcome.surface->sampledNodes() > 0) {
     const std::lock_guard lock(surfaces_mutex_);

@@ -366,6 +366,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     std::unique_ptr<alg::RoiRefiner> refiner;
     RefineOutcome outcome;
     outcome.job_id = job.id;
+    outcome.map_epoch = job.map_epoch;
     while (!workers_stop.load()) {
       // Each phase's slices have their own cost model: a setup slice costs
       // several iterations, and one cost for both would keep iterations out

@@ -44,6 +44,10 @@ class PoseGraph {
  public:
   /// Adds or moves a node.
   void setNode(uint32_t id, const Eigen::Isometry3d& T_world_node);
+  /// Moves nodes back (e.g. to before a solve whose result is not used).
+  void setNodes(const std::map<uint32_t, Eigen::Isometry3d>& nodes) {
+    for (const auto& [id, T] : nodes) setNode(id, T);
+  }
   /// A factor between two nodes that exist (false otherwise).
   bool addFactor(const PoseGraphFactor& factor);
   /// Optimizes every node but `fixed` (the gauge).

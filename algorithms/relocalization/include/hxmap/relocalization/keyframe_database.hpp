@@ -56,10 +56,13 @@ class KeyframeDatabase {
   /// no keyframe gives min_pnp_inliers. `why` (optional) receives the
   /// reason when empty.
   /// `near` ranks the keyframes nearest it first; `round` (the count of
-  /// attempts so far) picks which of the rest this attempt matches.
+  /// attempts so far) picks which of the rest this attempt matches. Only
+  /// keyframes with an id up to `max_id` take part (loop closure: the old
+  /// ones).
   std::vector<RelocalizationCandidate> query(const FrameFeatures& frame, const PinholeCamera& camera,
                                              const Eigen::Isometry3d& near, uint64_t round,
-                                             std::string* why = nullptr) const;
+                                             std::string* why = nullptr,
+                                             uint32_t max_id = UINT32_MAX) const;
 
   size_t size() const { return keyframes_.size(); }
   size_t bytes() const;

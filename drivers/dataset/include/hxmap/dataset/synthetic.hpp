@@ -30,7 +30,9 @@ struct SyntheticParams {
   /// "orbit" (around the table), "sweep" (along a wall), "inspect" (along
   /// the back wall and back, rising once to glance over a shelf; made for
   /// SyntheticScene::qualityRoom) or "fast" (hand-held around the table:
-  /// surges to about 1.2 m/s and 50 deg/s with a hand's shake on top).
+  /// surges to about 1.2 m/s and 50 deg/s with a hand's shake on top) or
+  /// "loop" (10 s laps in the middle of the room looking out at the walls:
+  /// the start comes back into view once per lap).
   std::string trajectory = "orbit";
   /// Frames from blackout_start_s for blackout_s seconds have no valid
   /// depth and black color (a covered lens, a sensor restart); the ground

@@ -11,6 +11,7 @@
 #include "hxmap/implicit/params.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/quality/params.hpp"
+#include "hxmap/posegraph/params.hpp"
 #include "hxmap/relocalization/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
@@ -45,7 +46,7 @@ struct SyntheticConfig {
   double fps = 30.0;  ///< frame rate the trajectory is sampled at (lower: more motion per frame)
   int seed = 1;
   std::string scene = "room";         ///< room | quality
-  std::string trajectory = "orbit";  ///< orbit | sweep | inspect
+  std::string trajectory = "orbit";  ///< orbit | sweep | inspect | fast | loop
   double scale = 1.0;                ///< scene and trajectory scaled about the origin
   bool noise = true;
   double noise_scale = 1.0;
@@ -60,6 +61,11 @@ struct SyntheticConfig {
 };
 
 struct EvalConfig {
+  /// Evaluation only: drift added to every tracked pose, per frame, on the
+  /// right (a rotation about the camera's y axis, a translation along its
+  /// x axis), to see how pose feedback and loop closure cope with it.
+  double odometry_bias_deg = 0.0;
+  double odometry_bias_m = 0.0;
   int mesh_samples = 200000;
   double threshold_fine_m = 0.01;
   double threshold_coarse_m = 0.05;
@@ -142,6 +148,7 @@ struct HxmapConfig {
   alg::MeshParams mesh;
   alg::TrackingParams tracking;
   alg::RelocalizationParams relocalization;
+  alg::LoopClosureParams loop_closure;
   bool quality_enabled = true;
   alg::QualityParams quality;
   RefineConfig refine;

@@ -5,6 +5,7 @@
 #include <array>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -19,6 +20,8 @@
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
 #include "hxmap/implicit/refine.hpp"
+#include "hxmap/posegraph/params.hpp"
+#include "hxmap/posegraph/pose_graph.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
 #include "hxmap/relocalization/keyframe_database.hpp"
@@ -61,6 +64,10 @@ struct FrontendParams {
   /// (takeFeedbackKeyframes) and its corrected poses come back
   /// (applyKeyframeCorrection). feedback.enabled = false: neither.
   alg::FeedbackParams feedback;
+  /// Loop closure over the keyframe database: closures verified by ICP
+  /// against the map, a pose graph over keyframes, the trajectory corrected
+  /// and the map rebuilt from the keyframes at their new poses.
+  alg::LoopClosureParams loop_closure;
   /// Evaluation only: a tracking bias, xi = (omega rad, v m) applied to
   /// every tracked pose on the right (T <- T exp(xi)), to measure how pose
   /// feedback copes with drifting odometry. Zero in any real run.
@@ -73,6 +80,7 @@ struct FrontendParams {
 struct RefineJob {
   uint64_t id = 0;
   uint32_t keyframe_id = 0;  ///< the keyframe whose scoring chose the ROI
+  uint64_t map_epoch = 0;    ///< the map it was cut from (a loop closure rebuilds the map)
   alg::Roi roi;
   std::shared_ptr<const alg::TsdfMap> snapshot;
   std::vector<alg::KeyframeImages> keyframes;
@@ -81,6 +89,7 @@ struct RefineJob {
 /// A job's outcome, for the map's writer.
 struct RefineOutcome {
   uint64_t job_id = 0;
+  uint64_t map_epoch = 0;  ///< the job's
   alg::RefineResult result;
   double setup_ms = 0;       ///< field initialization and ray collection
   double train_ms = 0;       ///< the iterations
@@ -162,6 +171,22 @@ struct TrackingCounters {
   double keyframe_features_ms = 0;       ///< total ORB extraction for the database
   uint64_t interpolated_poses = 0;       ///< lost frames given poses between the ones either side, once found again
   size_t database_keyframes = 0, database_bytes = 0;
+};
+
+/// What loop closure did, summed over a run.
+struct LoopClosureCounters {
+  uint64_t queries = 0;        ///< keyframes compared with the old ones
+  uint64_t candidates = 0;     ///< PnP poses from old keyframes
+  uint64_t refused_icp = 0;    ///< candidates ICP against the map did not confirm
+  uint64_t refused_graph = 0;  ///< confirmed ones the pose graph could not take (chi-square)
+  uint64_t consistent = 0;     ///< confirmed, the graph moved no keyframe beyond min_correction: nothing applied
+  uint64_t odometry_fallbacks = 0;  ///< keyframe-to-keyframe alignments that failed (tracked motion used)
+  uint64_t closures = 0;       ///< confirmed and applied: trajectory corrected, map rebuilt
+  uint64_t keyframes_rebuilt = 0;  ///< keyframe observations re-fused, summed over rebuilds
+  uint64_t stale_refinements = 0;  ///< refinement results for a map since rebuilt (dropped)
+  double largest_correction_m = 0, largest_correction_deg = 0;  ///< the most any keyframe moved in a closure
+  double cost_before = 0, cost_after = 0;  ///< pose graph cost, summed over applied closures
+  double detect_ms = 0, solve_ms = 0, rebuild_ms = 0;  ///< totals
 };
 
 /// Process-wide: large buffers come from the heap and heap memory is kept
@@ -264,6 +289,8 @@ class Frontend {
     return c;
   }
   const alg::KeyframeDatabase& keyframeDatabase() const { return keyframe_db_; }
+  const LoopClosureCounters& loopClosureCounters() const { return loop_counters_; }
+  const alg::PoseGraph& poseGraph() const { return pose_graph_; }
   size_t keyframes() const { return keyframes_; }
 
   /// Quality of the map's regions (paper 3.2), updated on each keyframe.
@@ -297,7 +324,32 @@ class Frontend {
   /// model at the verified pose.
   bool relocalize(const alg::PreprocessedFrame& pre, const alg::TrackingParams& gates, alg::IcpResult& verified,
                   std::string& why);
-  void addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
+  /// The keyframe's ORB features, added to the database (empty without color).
+  alg::FrameFeatures addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
+                                           const Eigen::Isometry3d& T_world_cam);
+  /// Loop closure at a new keyframe (last_frame_ at T_world_kf, its
+  /// features): its node and an odometry factor (the keyframe aligned to
+  /// the previous one) join the pose graph; a closure with an old
+  /// keyframe, once verified, corrects the trajectory, the live pose and
+  /// T_world_kf, and rebuilds the map.
+  void closeLoop(uint32_t id, const alg::FrameFeatures& features, const alg::PreprocessedFrame& previous_kf,
+                 const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
+                 Eigen::Isometry3d& T_world_kf);
+  /// Odometry from the previous keyframe to this one (last_frame_):
+  /// last_frame_ aligned to the previous keyframe's own depth and color,
+  /// from the tracked pose. DESIGN: not the tracked poses' difference:
+  /// tracking against the map snaps back onto old surfaces when the camera
+  /// returns to them, and that jump in the chain would hide the drift the
+  /// loop should spread out.
+  Eigen::Isometry3d keyframeOdometry(const alg::PreprocessedFrame& previous_kf, const Eigen::Isometry3d& T_previous_kf,
+                                     const Eigen::Isometry3d& T_previous_kf_color,
+                                     const Eigen::Isometry3d& T_world_kf);
+  /// After the pose graph moved: every frame moves with its keyframe, the
+  /// live state with the newest; then rebuildMap().
+  void applyGraph(Eigen::Isometry3d& T_world_kf);
+  /// The map fused anew from the stored keyframe observations at their
+  /// graph poses.
+  void rebuildMap();
   /// Step 2 of process(): the decision, the result that gave the pose (or
   /// the model's failed one) and the pose.
   alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T);
@@ -359,6 +411,13 @@ class Frontend {
   std::vector<alg::WindowKeyframe> feedback_out_;
   std::deque<uint32_t> reintegrate_queue_;
   FeedbackCounters feedback_counters_;
+  // Loop closure: the graph over keyframes, each keyframe's first
+  // trajectory entry, and the observations the map is rebuilt from.
+  alg::PoseGraph pose_graph_;
+  std::map<uint32_t, size_t> keyframe_index_;
+  std::map<uint32_t, alg::DepthObservation> loop_observations_;
+  LoopClosureCounters loop_counters_;
+  uint64_t map_epoch_ = 0;
   mutable std::shared_mutex map_mutex_;
   mutable std::mutex surfaces_mutex_;
   std::deque<std::shared_ptr<const alg::FieldSurface>> surfaces_;  ///< newest first
