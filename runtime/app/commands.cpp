@@ -195,13 +195,16 @@ std::string trackingSummary(const Frontend& frontend) {
 std::string loopClosureSummary(const Frontend& frontend) {
   const LoopClosureCounters& l = frontend.loopClosureCounters();
   return fmt::format(
-      "loop closure: {} keyframes compared with older ones ({:.1f} ms each), {} candidates: {} refused by the ICP "
-      "check, {} refused by the pose graph, {} already consistent, {} closed (largest correction {:.1f} cm, {:.2f} "
-      "deg); pose graph {} keyframes, cost {:.1f} -> {:.1f}, {:.1f} ms solving; map rebuilt {} times from {} "
+      "loop closure: {} keyframes compared with older ones ({:.1f} ms each), {} candidates: {} beyond the drift "
+      "bound, {} refused by the ICP check, {} refused by the pose graph, {} already consistent, {} closed (largest correction {:.1f} cm, {:.2f} "
+      "deg); pose graph {} keyframes, cost {:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes "
+      "replaced by their alignment {} times ({} alignments failed); map rebuilt {} times from {} "
       "keyframe observations in {:.0f} ms; {} refinement results dropped as stale\n",
-      l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.candidates, l.refused_icp,
+      l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.candidates, l.refused_drift,
+      l.refused_icp,
       l.refused_graph, l.consistent, l.closures, 100 * l.largest_correction_m, l.largest_correction_deg,
-      frontend.poseGraph().nodes().size(), l.cost_before, l.cost_after, l.solve_ms, l.closures, l.keyframes_rebuilt,
+      frontend.poseGraph().nodes().size(), l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps,
+      l.odometry_unverified, l.closures, l.keyframes_rebuilt,
       l.rebuild_ms, l.stale_refinements);
 }
 

@@ -62,6 +62,22 @@ Matrix6d isotropicInformation(double sigma_rotation_rad, double sigma_translatio
   return info;
 }
 
+Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m) {
+  Vector6d d;
+  d << sigma_rotation_rad, sigma_rotation_rad, sigma_rotation_rad, sigma_translation_m, sigma_translation_m,
+      sigma_translation_m;
+  // In units of the isotropic sigmas, scaled so that the largest
+  // eigenvalue is 1.
+  const Matrix6d m = d.asDiagonal() * (0.5 * (registration + registration.transpose())) * d.asDiagonal();
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(m);
+  const double top = eig.eigenvalues().maxCoeff();
+  if (!registration.allFinite() || eig.info() != Eigen::Success || !(top > 0) || !(eig.eigenvalues().minCoeff() > 0)) {
+    return isotropicInformation(sigma_rotation_rad, sigma_translation_m);
+  }
+  const Vector6d inv_d = d.cwiseInverse();
+  return inv_d.asDiagonal() * (m / top) * inv_d.asDiagonal();
+}
+
 void PoseGraph::setNode(uint32_t id, const Eigen::Isometry3d& T_world_node) { nodes_[id] = T_world_node; }
 
 bool PoseGraph::addFactor(const PoseGraphFactor& factor) {

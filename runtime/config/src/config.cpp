@@ -156,6 +156,11 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("loop_sigma_m", lc.loop_sigma_m, 1e-5, 10);
   v.number("loop_sigma_deg", lc.loop_sigma_deg, 1e-4, 90);
   v.number("gate_chi2", lc.gate_chi2, 0.1, 1e6);
+  v.number("max_drift_m", lc.max_drift_m, 0, 100);
+  v.number("max_drift_per_m", lc.max_drift_per_m, 0, 10);
+  v.number("max_drift_deg", lc.max_drift_deg, 0, 180);
+  v.number("max_drift_deg_per_m", lc.max_drift_deg_per_m, 0, 180);
+  v.number("jump_sigmas", lc.jump_sigmas, 0.1, 1000);
   v.number("min_correction_m", lc.min_correction_m, 0, 10);
   v.number("min_correction_deg", lc.min_correction_deg, 0, 180);
   v.integer("max_stored_keyframes", lc.max_stored_keyframes, 2, 100000);

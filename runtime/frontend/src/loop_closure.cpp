@@ -11,6 +11,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "hxmap/feedback/residuals.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/geometry/se3.hpp"
 
@@ -35,10 +36,31 @@ Eigen::Isometry3d Frontend::keyframeOdometry(const alg::PreprocessedFrame& previ
   const alg::IcpResult icp =
       alg::trackPointToPlane(last_frame_, alg::frameAsModel(previous_kf, T_previous_kf), T_world_kf, tp, reference, parallel_);
   if (!icp.ok) {
-    ++loop_counters_.odometry_fallbacks;
+    ++loop_counters_.odometry_unverified;
     return tracked;
   }
-  return T_previous_kf.inverse() * icp.T_world_cam;
+  // Tracking against the map is the more precise of the two while they
+  // agree (the map averages many frames); when they do not, the tracked
+  // motion holds a jump the two keyframes' own images do not show.
+  const Eigen::Isometry3d aligned = T_previous_kf.inverse() * icp.T_world_cam;
+  const Eigen::Isometry3d d = tracked.inverse() * aligned;
+  const alg::LoopClosureParams& lp = params_.loop_closure;
+  if (!icp.degraded.empty() || (alg::translationNorm(d) <= lp.jump_sigmas * lp.odometry_sigma_m &&
+                                 degrees(alg::rotationAngle(d)) <= lp.jump_sigmas * lp.odometry_sigma_deg)) {
+    return tracked;
+  }
+  ++loop_counters_.odometry_jumps;
+  return aligned;
+}
+
+double Frontend::pathLength(uint32_t from, uint32_t to) const {
+  double path = 0;
+  const auto end = pose_graph_.nodes().upper_bound(to);
+  auto it = pose_graph_.nodes().lower_bound(from);
+  for (auto prev = it; it != end; prev = it++) {
+    if (it != prev) path += (prev->second.translation() - it->second.translation()).norm();
+  }
+  return path;
 }
 
 void Frontend::closeLoop(uint32_t id, const alg::FrameFeatures& features, const alg::PreprocessedFrame& previous_kf,
@@ -74,16 +96,26 @@ void Frontend::closeLoop(uint32_t id, const alg::FrameFeatures& features, const 
   loop_counters_.candidates += candidates.size();
   const alg::TrackingParams tp = params_.tracking;
   const alg::RelocalizationParams& rp = params_.relocalization;
-  std::optional<std::pair<alg::RelocalizationCandidate, Eigen::Isometry3d>> confirmed;
+  struct Confirmed {
+    alg::RelocalizationCandidate candidate;
+    Eigen::Isometry3d T_world_kf;
+    alg::Matrix6d information;  ///< ICP's, world frame, left perturbation
+  };
+  std::optional<Confirmed> confirmed;
   for (size_t i = 0; i < candidates.size() && i < 2 && !confirmed; ++i) {
     const alg::RelocalizationCandidate& c = candidates[i];
     if (!pose_graph_.hasNode(c.keyframe_id)) continue;
     renderModel(last_frame_, c.T_world_cam);
     const alg::IcpResult icp = alg::trackPointToPlane(last_frame_, model_, c.T_world_cam, tp, {}, parallel_);
     const Eigen::Isometry3d moved = c.T_world_cam.inverse() * icp.T_world_cam;
-    if (icp.ok && icp.degraded.empty() && alg::translationNorm(moved) <= rp.max_icp_correction_m &&
-        degrees(alg::rotationAngle(moved)) <= rp.max_icp_correction_deg) {
-      confirmed.emplace(c, icp.T_world_cam);
+    const Eigen::Isometry3d correction = T_world_kf.inverse() * icp.T_world_cam;
+    const double path = pathLength(c.keyframe_id, id);
+    if (alg::translationNorm(correction) > lp.max_drift_m + lp.max_drift_per_m * path ||
+        degrees(alg::rotationAngle(correction)) > lp.max_drift_deg + lp.max_drift_deg_per_m * path) {
+      ++loop_counters_.refused_drift;
+    } else if (icp.ok && icp.degraded.empty() && alg::translationNorm(moved) <= rp.max_icp_correction_m &&
+               degrees(alg::rotationAngle(moved)) <= rp.max_icp_correction_deg) {
+      confirmed = Confirmed{c, icp.T_world_cam, icp.information};
     } else {
       ++loop_counters_.refused_icp;
     }
@@ -94,11 +126,17 @@ void Frontend::closeLoop(uint32_t id, const alg::FrameFeatures& features, const 
 
   // The closure: the keyframe's pose as the old keyframe's part of the map
   // has it.
-  const auto& [c, T_loop] = *confirmed;
+  // Its information has the shape of ICP's: a view that constrains one
+  // direction weakly (along a wall) gives a factor weak in that direction.
+  const alg::RelocalizationCandidate& c = confirmed->candidate;
+  const Eigen::Isometry3d& T_loop = confirmed->T_world_kf;
   const Eigen::Isometry3d correction = T_world_kf.inverse() * T_loop;
-  const alg::PoseGraphFactor factor{c.keyframe_id, id, pose_graph_.node(c.keyframe_id).inverse() * T_loop,
-                                    alg::isotropicInformation(lp.loop_sigma_deg * M_PI / 180.0, lp.loop_sigma_m),
-                                    true};
+  const alg::Matrix6d Ad = alg::adjoint(T_loop);  // to a right perturbation, in the keyframe's frame
+  const alg::PoseGraphFactor factor{
+      c.keyframe_id, id, pose_graph_.node(c.keyframe_id).inverse() * T_loop,
+      alg::shapedInformation(Ad.transpose() * confirmed->information * Ad, lp.loop_sigma_deg * M_PI / 180.0,
+                             lp.loop_sigma_m),
+      true};
   const std::map<uint32_t, Eigen::Isometry3d> nodes_before = pose_graph_.nodes();
   const uint32_t gauge = pose_graph_.nodes().begin()->first;
   const alg::PoseGraphReport report = pose_graph_.addLoop(factor, gauge, std::sqrt(lp.gate_chi2));

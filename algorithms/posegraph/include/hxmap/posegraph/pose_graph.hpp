@@ -40,6 +40,13 @@ struct PoseGraphReport {
 /// sigma_rotation_rad and sigma_translation_m per axis.
 Matrix6d isotropicInformation(double sigma_rotation_rad, double sigma_translation_m);
 
+/// The information of a registration (e.g. ICP's J^T W J, whose scale is
+/// far overconfident) reshaped for a factor: its best-constrained direction
+/// gets the isotropic sigmas, weaker directions proportionally larger ones
+/// (a view of one wall constrains little along it). Falls back to the
+/// isotropic information when `registration` is not positive definite.
+Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m);
+
 class PoseGraph {
  public:
   /// Adds or moves a node.
