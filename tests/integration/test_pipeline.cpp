@@ -355,7 +355,8 @@ TEST(RunCommand, AnOutputThatCannotBeWrittenLeavesNoTemporaryAndIsNotListed) {
   EXPECT_FALSE(std::filesystem::exists(out + "/mesh.ply.tmp"));
   std::ifstream summary(out + "/summary.txt");
   const std::string text((std::istreambuf_iterator<char>(summary)), {});
-  EXPECT_NE(text.find("outputs: " + out + "/trajectory.txt\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("outputs: " + out + "/trajectory.txt, " + out + "/trajectory_live.txt\n"), std::string::npos)
+      << text;
   EXPECT_NE(text.find("not written (see the errors): " + out + "/mesh.ply"), std::string::npos) << text;
 }
 
@@ -453,7 +454,7 @@ TEST(SynthCommand, BadSceneTrajectoryOrScaleAreUsageErrorsAndWriteNothing) {
   o.scene = "castle";
   EXPECT_EQ(synthCommand(o), 2);
   o.scene = "quality";
-  o.trajectory = "loop";
+  o.trajectory = "spiral";
   EXPECT_EQ(synthCommand(o), 2);
   EXPECT_FALSE(std::filesystem::exists(o.out_dir));
   o.trajectory = "inspect";

@@ -62,7 +62,8 @@ Matrix6d isotropicInformation(double sigma_rotation_rad, double sigma_translatio
   return info;
 }
 
-Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m) {
+Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m,
+                           double min_ratio) {
   Vector6d d;
   d << sigma_rotation_rad, sigma_rotation_rad, sigma_rotation_rad, sigma_translation_m, sigma_translation_m,
       sigma_translation_m;
@@ -74,8 +75,12 @@ Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_r
   if (!registration.allFinite() || eig.info() != Eigen::Success || !(top > 0) || !(eig.eigenvalues().minCoeff() > 0)) {
     return isotropicInformation(sigma_rotation_rad, sigma_translation_m);
   }
+  // Eigenvalues below min_ratio of the largest are raised to it.
+  Vector6d lambda = eig.eigenvalues() / top;
+  lambda = lambda.cwiseMax(min_ratio);
+  const Matrix6d shaped = eig.eigenvectors() * lambda.asDiagonal() * eig.eigenvectors().transpose();
   const Vector6d inv_d = d.cwiseInverse();
-  return inv_d.asDiagonal() * (m / top) * inv_d.asDiagonal();
+  return inv_d.asDiagonal() * shaped * inv_d.asDiagonal();
 }
 
 void PoseGraph::setNode(uint32_t id, const Eigen::Isometry3d& T_world_node) { nodes_[id] = T_world_node; }

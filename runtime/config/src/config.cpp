@@ -155,6 +155,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("odometry_sigma_deg", lc.odometry_sigma_deg, 1e-4, 90);
   v.number("loop_sigma_m", lc.loop_sigma_m, 1e-5, 10);
   v.number("loop_sigma_deg", lc.loop_sigma_deg, 1e-4, 90);
+  v.number("loop_min_information_ratio", lc.loop_min_information_ratio, 0, 1);
   v.number("gate_chi2", lc.gate_chi2, 0.1, 1e6);
   v.number("max_drift_m", lc.max_drift_m, 0, 100);
   v.number("max_drift_per_m", lc.max_drift_per_m, 0, 10);

@@ -106,6 +106,10 @@ void Frontend::closeLoop(uint32_t id, const alg::FrameFeatures& features, const 
     const alg::RelocalizationCandidate& c = candidates[i];
     if (!pose_graph_.hasNode(c.keyframe_id)) continue;
     renderModel(last_frame_, c.T_world_cam);
+    // Depth alone: with the map's colors rendered at the candidate as a
+    // photometric reference, the synthetic loop's closures came out worse
+    // (ATE 1.54 against 1.44 cm, mesh F1 at 1 cm 40 against 54 %); a view
+    // along one wall is kept from sliding by the factor's shape instead.
     const alg::IcpResult icp = alg::trackPointToPlane(last_frame_, model_, c.T_world_cam, tp, {}, parallel_);
     const Eigen::Isometry3d moved = c.T_world_cam.inverse() * icp.T_world_cam;
     const Eigen::Isometry3d correction = T_world_kf.inverse() * icp.T_world_cam;
@@ -135,7 +139,7 @@ void Frontend::closeLoop(uint32_t id, const alg::FrameFeatures& features, const 
   const alg::PoseGraphFactor factor{
       c.keyframe_id, id, pose_graph_.node(c.keyframe_id).inverse() * T_loop,
       alg::shapedInformation(Ad.transpose() * confirmed->information * Ad, lp.loop_sigma_deg * M_PI / 180.0,
-                             lp.loop_sigma_m),
+                             lp.loop_sigma_m, lp.loop_min_information_ratio),
       true};
   const std::map<uint32_t, Eigen::Isometry3d> nodes_before = pose_graph_.nodes();
   const uint32_t gauge = pose_graph_.nodes().begin()->first;
@@ -224,6 +228,9 @@ void Frontend::rebuildMap() {
   ++map_epoch_;
   pending_jobs_.clear();  // cut from the old map
   block_submitted_.clear();
+  quality_ = alg::QualityMap(params_.quality);  // its statistics describe the old map's blocks
+  scores_.clear();
+  rois_.clear();
   {
     const std::lock_guard lock(surfaces_mutex_);
     surfaces_.clear();  // refined fields and detail sit where the old map had the surface

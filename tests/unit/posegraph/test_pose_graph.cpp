@@ -117,3 +117,20 @@ TEST(PoseGraph, RefusesFactorsBetweenUnknownNodesAndAnUnknownGauge) {
   EXPECT_FALSE(g.optimize(7).failure.empty());
   EXPECT_FALSE(g.addLoop({0, 5, Eigen::Isometry3d::Identity(), Matrix6d::Identity(), true}, 0, 5.0).failure.empty());
 }
+
+TEST(PoseGraph, ShapedInformationKeepsTheBestDirectionsSigmaAndWeakensTheOthers) {
+  // A registration that pins rotation and x, z well and y a hundred times less.
+  Vector6d h;
+  h << 1e6, 1e6, 1e6, 4e6, 4e4, 4e6;
+  const Matrix6d shaped = shapedInformation(h.asDiagonal(), 0.01, 0.01);
+  // In units of the sigmas (1/0.01^2 = 1e4) the best direction has 1; y a
+  // hundredth of x's; the rotations a quarter of the best translation's.
+  EXPECT_NEAR(shaped(3, 3), 1e4, 1e-6);
+  EXPECT_NEAR(shaped(4, 4), 1e2, 1e-6);
+  EXPECT_NEAR(shaped(0, 0), 0.25e4, 1e-6);
+  EXPECT_NEAR(shapedInformation(h.asDiagonal(), 0.01, 0.01, 0.5)(4, 4), 0.5e4, 1e-6);  // the floor
+  // Not positive definite: the isotropic information.
+  Vector6d bad = h;
+  bad(4) = 0;
+  EXPECT_TRUE(shapedInformation(bad.asDiagonal(), 0.01, 0.02).isApprox(isotropicInformation(0.01, 0.02)));
+}

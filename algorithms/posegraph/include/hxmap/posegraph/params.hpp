@@ -14,9 +14,18 @@ struct LoopClosureParams {
   /// magnitude: a window of them failed its chi-square on real data).
   double odometry_sigma_m = 0.01;
   double odometry_sigma_deg = 0.5;
-  /// Loop factors (a PnP pose confirmed by ICP against the map).
+  /// Loop factors (a PnP pose confirmed by ICP against the map): these
+  /// sigmas in the direction ICP constrains best, larger ones where it
+  /// constrains less, their information down to loop_min_information_ratio
+  /// of the best direction's.
   double loop_sigma_m = 0.01;
   double loop_sigma_deg = 0.5;
+  /// Measured on the synthetic loop (0.1 deg, 2 mm drift per frame) and
+  /// the quality room: 0 gives ATE 1.44 cm and no closure on the room
+  /// (0.12 cm, as without loop closure); 0.1 gives 1.41 cm but a 2.3 cm
+  /// closure on the room that tracking did not need (0.86 cm); 1
+  /// (isotropic) 1.12 cm and a 3.1 cm one (1.13 cm).
+  double loop_min_information_ratio = 0.0;
   /// A closure is refused when, with it, any factor's whitened error
   /// exceeds the square root of this chi-square value (6 degrees of
   /// freedom; 22.46 is the 99.9 % quantile).

@@ -43,9 +43,11 @@ Matrix6d isotropicInformation(double sigma_rotation_rad, double sigma_translatio
 /// The information of a registration (e.g. ICP's J^T W J, whose scale is
 /// far overconfident) reshaped for a factor: its best-constrained direction
 /// gets the isotropic sigmas, weaker directions proportionally larger ones
-/// (a view of one wall constrains little along it). Falls back to the
-/// isotropic information when `registration` is not positive definite.
-Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m);
+/// (a view of one wall constrains little along it), down to `min_ratio`
+/// of the best one's information. Falls back to the isotropic information
+/// when `registration` is not positive definite.
+Matrix6d shapedInformation(const Matrix6d& registration, double sigma_rotation_rad, double sigma_translation_m,
+                           double min_ratio = 0.0);
 
 class PoseGraph {
  public:
