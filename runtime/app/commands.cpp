@@ -324,14 +324,19 @@ int runCommand(const RunOptions& o) {
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
   if (o.dds || c.dds.enabled) {
-    auto started = dds::Publisher::start(publisherParams(c));
+    auto params = publisherParams(c);
+    if (!params) {
+      spdlog::error("{}", params.message());
+      return 2;
+    }
+    auto started = dds::Publisher::start(*params);
     if (!started) {
       spdlog::error("{}", started.message());
       return 2;
     }
     publisher = std::move(*started);
     spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix,
-                 c.dds.domain_id);
+                 params->domain_id);
   }
 #else
   if (o.dds || c.dds.enabled) {

@@ -1,5 +1,7 @@
 // `hxmap echo` and the DDS publisher's configuration (built with HXMAP_WITH_DDS).
+#include <cerrno>
 #include <chrono>
+#include <cstdlib>
 #include <cstdio>
 
 #include <fmt/format.h>
@@ -13,9 +15,26 @@
 
 namespace hxmap::rt {
 
-dds::PublisherParams publisherParams(const HxmapConfig& c) {
+Expected<uint32_t> ddsDomain(int configured) {
+  if (configured >= 0) return static_cast<uint32_t>(configured);
+  const char* env = std::getenv("ROS_DOMAIN_ID");
+  if (env == nullptr || *env == '\0') return 0u;
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(env, &end, 10);
+  if (errno != 0 || *end != '\0' || v < 0 || v > 232) {
+    return Error{fmt::format("ROS_DOMAIN_ID: '{}' is not a DDS domain id (an integer in [0, 232]); set it right, "
+                             "or set dds.domain_id in the configuration",
+                             env)};
+  }
+  return static_cast<uint32_t>(v);
+}
+
+Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
+  auto domain = ddsDomain(c.dds.domain_id);
+  if (!domain) return domain.error();
   dds::PublisherParams p;
-  p.domain_id = static_cast<uint32_t>(c.dds.domain_id);
+  p.domain_id = *domain;
   p.topic_prefix = c.dds.topic_prefix;
   p.frame_id = c.dds.frame_id;
   p.map_period_s = c.dds.map_period_s;
@@ -54,7 +73,12 @@ int echoCommand(const EchoOptions& o) {
     spdlog::error("{}", topic.message());
     return 2;
   }
-  const uint32_t domain = static_cast<uint32_t>(o.domain_id >= 0 ? o.domain_id : c.dds.domain_id);
+  const auto resolved = ddsDomain(o.domain_id >= 0 ? o.domain_id : c.dds.domain_id);
+  if (!resolved) {
+    spdlog::error("{}", resolved.message());
+    return 2;
+  }
+  const uint32_t domain = *resolved;
   const std::string prefix = o.prefix.empty() ? c.dds.topic_prefix : o.prefix;
   auto participant = dds::Participant::create(domain);
   if (!participant) {

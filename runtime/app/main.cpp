@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
 
   CLI::App app{"hxmap: real-time dense RGB-D mapping"};
+  app.set_version_flag("--version", std::string("hxmap " HXMAP_VERSION " (built with: " HXMAP_PARTS ")"));
   app.require_subcommand(1);
   bool quiet = false, verbose = false;
   app.add_flag("-q,--quiet", quiet, "only warnings and errors on stderr");

@@ -152,7 +152,7 @@ int main(int argc, char** argv) {
   // 1. Pose latency to another process.
   {
     const std::string prefix = fmt::format("hxbench_{}_lat", getpid());
-    dds::PublisherParams p = publisherParams(config);
+    dds::PublisherParams p = *publisherParams(config);
     p.topic_prefix = prefix;
     p.map_period_s = p.trajectory_period_s = p.health_period_s = 3600;
     auto pub = dds::Publisher::start(p);
@@ -223,7 +223,7 @@ int main(int argc, char** argv) {
       continue;
     }
     const std::string prefix = fmt::format("hxbench_{}_tum", getpid());
-    dds::PublisherParams p = publisherParams(config);
+    dds::PublisherParams p = *publisherParams(config);
     p.topic_prefix = prefix;
     auto pub = dds::Publisher::start(p);
     if (!pub) {

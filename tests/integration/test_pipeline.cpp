@@ -9,6 +9,8 @@
 #include <fstream>
 #include <stdexcept>
 
+#include <sys/wait.h>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
@@ -267,6 +269,30 @@ TEST_F(Pipeline, CorruptFramesNeverCrash) {
   EXPECT_TRUE(fe.process(no_color).tracked) << "depth alone is enough to track";
   const FrameResult r5 = fe.process(frame(5));
   EXPECT_TRUE(r5.tracked) << r5.failure;
+}
+
+namespace {
+// The program's exit status and what it printed (stdout and stderr).
+std::pair<int, std::string> runProgram(const std::string& args) {
+  FILE* pipe = popen(("'" HXMAP_BIN "' " + args + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) return {-1, ""};
+  std::string out;
+  char buf[512];
+  while (fgets(buf, sizeof buf, pipe) != nullptr) out += buf;
+  const int status = pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+}
+}  // namespace
+
+TEST(Program, VersionAndUsageErrorsHaveTheDocumentedExitCodes) {
+  const auto [version_rc, version] = runProgram("--version");
+  EXPECT_EQ(version_rc, 0);
+  EXPECT_EQ(version.rfind("hxmap " HXMAP_VERSION_FOR_TEST, 0), 0u) << version;
+  EXPECT_NE(version.find("built with:"), std::string::npos) << version;
+  // CLI11's own codes (104-109) never leak out: a bad option is usage (2).
+  EXPECT_EQ(runProgram("run --no-such-option").first, 2);
+  EXPECT_EQ(runProgram("").first, 2);  // no command
+  EXPECT_EQ(runProgram("synth --frames zero --out x").first, 2);
 }
 
 TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {

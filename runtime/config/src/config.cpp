@@ -343,7 +343,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   auto& d = c.dds;
   v.section("dds");
   v.boolean("enabled", d.enabled);
-  v.integer("domain_id", d.domain_id, 0, 232);
+  v.integer("domain_id", d.domain_id, -1, 232);
   v.name("topic_prefix", d.topic_prefix);
   v.name("frame_id", d.frame_id);
   v.number("map_period_s", d.map_period_s, 0, 3600);

@@ -80,7 +80,7 @@ Expected<Topic> topicFromString(const std::string& name) {
 
 TopicQos topicQos(Topic topic) {
   switch (topic) {
-    case Topic::kPose: return {false, false, 1};
+    case Topic::kPose: return {true, false, 10};  // reliable: ROS 2's default readers ask for it (REP 2003)
     case Topic::kTrajectory: return {true, true, 1};
     case Topic::kMap: return {true, true, 1};
     case Topic::kHealth: return {true, true, 1};

@@ -128,7 +128,7 @@ struct RigConfig {
 /// health}; the network comes from CYCLONEDDS_URI (config/cyclonedds.xml).
 struct DdsConfig {
   bool enabled = false;
-  int domain_id = 0;                   ///< as ROS_DOMAIN_ID
+  int domain_id = -1;                  ///< -1: ROS_DOMAIN_ID from the environment (unset: 0)
   std::string topic_prefix = "hxmap";
   std::string frame_id = "map";        ///< header frame of poses and map
   double map_period_s = 1.0;           ///< changed map regions go out at most this often

@@ -1,7 +1,7 @@
 // hxmap's topics: names, QoS, and the C++ form of each message with its
 // conversion to and from the idlc-generated wire structs.
 //
-//   rt/<prefix>/pose        geometry_msgs/PoseStamped  best effort, keep last 1
+//   rt/<prefix>/pose        geometry_msgs/PoseStamped  reliable, volatile, keep last 10
 //   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
 //   rt/<prefix>/map         hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
 //   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1

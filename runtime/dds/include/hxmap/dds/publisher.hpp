@@ -3,8 +3,9 @@
 // meshes of the regions that changed, and health.
 //
 // DESIGN: the frontend thread calls onFrame() after each frame. The pose is
-// written right there: a best-effort write of 100 bytes never blocks and
-// costs microseconds, and any hand-over to another thread would only add
+// written right there: a write of 100 bytes to a keep-last writer never
+// blocks (reliable or not, the oldest unacknowledged sample is replaced)
+// and costs microseconds, and any hand-over to another thread would only add
 // latency. Everything else leaves the frontend thread as a work item on an
 // SPSC ring to the publisher thread (hx-publish), on its period: for the map
 // the frontend copies the blocks of the regions changed since the last
