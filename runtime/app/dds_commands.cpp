@@ -39,6 +39,7 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
   p.frame_id = c.dds.frame_id;
   p.map_period_s = c.dds.map_period_s;
   p.trajectory_period_s = c.dds.trajectory_period_s;
+  p.path_max_poses = c.dds.path_max_poses;
   p.health_period_s = c.dds.health_period_s;
   p.region_blocks = c.dds.region_blocks;
   p.max_triangles_per_chunk = c.dds.max_triangles_per_chunk;

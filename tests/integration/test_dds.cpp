@@ -317,6 +317,35 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
   EXPECT_LT((path.poses[1].T_world_cam.matrix() - poseAt(1).matrix()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+TEST(DdsLoopback, ThePathCarriesTheNewestPosesOnly) {
+  const std::string pre = prefix("path");
+  PublisherParams p = params(pre);
+  p.path_max_poses = 5;
+  auto pub = Publisher::start(p);
+  ASSERT_TRUE(pub) << pub.message();
+  Trajectory trajectory;
+  for (int k = 0; k < 12; ++k) trajectory.push_back({1000 + k, poseAt(k)});
+  (*pub)->flush(alg::TsdfMap(tsdfParams()), trajectory, RunCounters{});
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader = Reader::create(*participant, topicType(Topic::kTrajectory), topicName(Topic::kTrajectory, pre),
+                               topicQos(Topic::kTrajectory));
+  ASSERT_TRUE(reader) << reader.message();
+  PathMessage path;
+  ASSERT_TRUE(waitFor([&] {
+    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+      path = fromWire(*static_cast<const nav_msgs_msg_dds__Path_*>(s));
+    });
+    return !path.poses.empty();
+  }, 20));
+  ASSERT_EQ(path.poses.size(), 5u);
+  for (size_t i = 0; i < 5; ++i) {
+    EXPECT_EQ(path.poses[i].stamp_ns, 1007 + static_cast<int64_t>(i));
+    EXPECT_LT((path.poses[i].T_world_cam.matrix() - poseAt(static_cast<int>(7 + i)).matrix()).cwiseAbs().maxCoeff(),
+              1e-12);
+  }
+}
+
 TEST(DdsLoopback, HealthCarriesTheRunnersCounters) {
   const std::string pre = prefix("health");
   auto pub = Publisher::start(params(pre));

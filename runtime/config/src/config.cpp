@@ -348,6 +348,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.name("frame_id", d.frame_id);
   v.number("map_period_s", d.map_period_s, 0, 3600);
   v.number("trajectory_period_s", d.trajectory_period_s, 0, 3600);
+  v.integer("path_max_poses", d.path_max_poses, 0, 10000000);
   v.number("health_period_s", d.health_period_s, 0, 3600);
   v.integer("region_blocks", d.region_blocks, 1, 64);
   v.integer("max_triangles_per_chunk", d.max_triangles_per_chunk, 1, 1 << 22);

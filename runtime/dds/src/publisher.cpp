@@ -98,7 +98,9 @@ void Publisher::queuePath(const Trajectory& trajectory, int64_t stamp_ns, bool m
   work->kind = Work::kPath;
   work->path.stamp_ns = stamp_ns;
   work->path.frame_id = params_.frame_id;
-  work->path.poses = trajectory;
+  const size_t keep = params_.path_max_poses > 0 ? static_cast<size_t>(params_.path_max_poses) : trajectory.size();
+  const size_t first = trajectory.size() > keep ? trajectory.size() - keep : 0;
+  work->path.poses.assign(trajectory.begin() + static_cast<std::ptrdiff_t>(first), trajectory.end());
   push(std::move(work), must);
 }
 

@@ -133,6 +133,7 @@ struct DdsConfig {
   std::string frame_id = "map";        ///< header frame of poses and map
   double map_period_s = 1.0;           ///< changed map regions go out at most this often
   double trajectory_period_s = 1.0;
+  int path_max_poses = 900;            ///< the Path's newest poses (30 s at 30 FPS; 0: all)
   double health_period_s = 1.0;
   int region_blocks = 4;               ///< map update region: a cube of this many TSDF blocks a side
   int max_triangles_per_chunk = 16384; ///< larger region meshes go out in parts

@@ -41,6 +41,10 @@ struct PublisherParams {
   std::string frame_id = "map";
   double map_period_s = 1.0;         ///< changed regions go out at most this often
   double trajectory_period_s = 1.0;
+  /// The Path carries the newest this many poses (0: all; the whole
+  /// trajectory grows without bound and is copied on the frontend thread
+  /// every period).
+  int path_max_poses = 900;
   double health_period_s = 1.0;
   int region_blocks = 4;             ///< region side in TSDF blocks
   int max_triangles_per_chunk = 16384;
