@@ -317,6 +317,26 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
   EXPECT_LT((path.poses[1].T_world_cam.matrix() - poseAt(1).matrix()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// ROS 2's readers accept XCDR1 only; Cyclone would pick XCDR2 by itself
+// for types that are not final.
+TEST(DdsLoopback, EveryWriterOffersXcdr1Only) {
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+    auto w = Writer::create(*participant, topicType(t), topicName(t, prefix("xcdr")), topicQos(t));
+    ASSERT_TRUE(w) << w.message();
+    dds_qos_t* qos = dds_create_qos();
+    ASSERT_EQ(dds_get_qos(w->get(), qos), DDS_RETCODE_OK);
+    uint32_t n = 0;
+    dds_data_representation_id_t* ids = nullptr;
+    ASSERT_TRUE(dds_qget_data_representation(qos, &n, &ids));
+    ASSERT_EQ(n, 1u) << w->topic();
+    EXPECT_EQ(ids[0], DDS_DATA_REPRESENTATION_XCDR1) << w->topic();
+    dds_free(ids);
+    dds_delete_qos(qos);
+  }
+}
+
 TEST(DdsLoopback, ThePathCarriesTheNewestPosesOnly) {
   const std::string pre = prefix("path");
   PublisherParams p = params(pre);

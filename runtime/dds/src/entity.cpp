@@ -19,6 +19,10 @@ QosPtr makeQos(const TopicQos& q) {
   dds_qset_reliability(qos.get(), q.reliable ? DDS_RELIABILITY_RELIABLE : DDS_RELIABILITY_BEST_EFFORT, DDS_MSECS(100));
   dds_qset_durability(qos.get(), q.transient_local ? DDS_DURABILITY_TRANSIENT_LOCAL : DDS_DURABILITY_VOLATILE);
   dds_qset_history(qos.get(), DDS_HISTORY_KEEP_LAST, q.depth);
+  // XCDR1, stated rather than left to Cyclone's choice by the types'
+  // extensibility (XCDR2 for appendable types): ROS 2's readers take XCDR1.
+  const dds_data_representation_id_t xcdr1 = DDS_DATA_REPRESENTATION_XCDR1;
+  dds_qset_data_representation(qos.get(), 1, &xcdr1);
   return qos;
 }
 

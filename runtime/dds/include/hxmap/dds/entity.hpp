@@ -74,6 +74,7 @@ class Writer {
   /// Readers currently matched (0 on error).
   uint32_t matchedReaders() const;
   const std::string& topic() const { return topic_; }
+  dds_entity_t get() const { return writer_.get(); }
 
  private:
   std::string topic_;
