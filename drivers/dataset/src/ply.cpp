@@ -1,5 +1,6 @@
 #include "hxmap/dataset/ply.hpp"
 
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -37,17 +38,32 @@ Status writeTextFile(const std::string& path, const std::string& text) {
 
 Status writePly(const std::string& path, const alg::TriangleMesh& mesh) {
   const bool colors = mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty();
+  // Per-vertex normals: the area-weighted sum of the adjoining faces'
+  // normals (triangles are counter-clockwise seen from outside, so they
+  // point out of the surface, towards where the camera was).
+  std::vector<Eigen::Vector3f> normals(mesh.vertices.size(), Eigen::Vector3f::Zero());
+  for (const auto& t : mesh.triangles) {
+    if (t.minCoeff() < 0 || t.maxCoeff() >= static_cast<int>(mesh.vertices.size())) continue;
+    const Eigen::Vector3f n = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    for (int k = 0; k < 3; ++k) normals[t[k]] += n;
+  }
+  for (auto& n : normals) {
+    const float len = n.norm();
+    n = len > 0 && std::isfinite(len) ? Eigen::Vector3f(n / len) : Eigen::Vector3f::Zero();
+  }
   std::string out = fmt::format(
       "ply\nformat binary_little_endian 1.0\ncomment written by hxmap\nelement vertex {}\n"
-      "property float x\nproperty float y\nproperty float z\n{}element face {}\n"
-      "property list uchar int vertex_indices\nend_header\n",
+      "property float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\n"
+      "property float nz\n{}element face {}\nproperty list uchar int vertex_indices\nend_header\n",
       mesh.vertices.size(), colors ? "property uchar red\nproperty uchar green\nproperty uchar blue\n" : "",
       mesh.triangles.size());
   const size_t header = out.size();
-  out.resize(header + mesh.vertices.size() * (12 + (colors ? 3 : 0)) + mesh.triangles.size() * 13);
+  out.resize(header + mesh.vertices.size() * (24 + (colors ? 3 : 0)) + mesh.triangles.size() * 13);
   char* p = out.data() + header;
   for (size_t i = 0; i < mesh.vertices.size(); ++i) {
     std::memcpy(p, mesh.vertices[i].data(), 12);
+    p += 12;
+    std::memcpy(p, normals[i].data(), 12);
     p += 12;
     if (colors) {
       std::memcpy(p, mesh.colors[i].data(), 3);

@@ -1,3 +1,6 @@
+#include <cstring>
+#include <fstream>
+
 #include <gtest/gtest.h>
 
 #include "hxmap/dataset/parsers.hpp"
@@ -88,6 +91,22 @@ TEST(Ply, RoundTripAndCorruption) {
   EXPECT_EQ(back->vertices[1], m.vertices[1]);
   EXPECT_EQ(back->colors[2], m.colors[2]);
   EXPECT_EQ(back->triangles[0], m.triangles[0]);
+  {
+    // Normals follow x, y, z: the triangle is counter-clockwise seen from +z.
+    std::ifstream in(path, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), {});
+    ASSERT_NE(bytes.find("property float x\nproperty float y\nproperty float z\nproperty float nx\n"
+                         "property float ny\nproperty float nz\n"),
+              std::string::npos);
+    const size_t body = bytes.find("end_header\n") + 11;
+    for (int v = 0; v < 3; ++v) {
+      float n[3];
+      std::memcpy(n, bytes.data() + body + static_cast<size_t>(v) * 27 + 12, sizeof n);
+      EXPECT_EQ(n[0], 0.0f);
+      EXPECT_EQ(n[1], 0.0f);
+      EXPECT_EQ(n[2], 1.0f);
+    }
+  }
   auto truncated = parsePly("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
                             "property float y\nproperty float z\nend_header\n\x01\x02",
                             "t.ply");
