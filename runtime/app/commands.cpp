@@ -359,6 +359,11 @@ int runCommand(const RunOptions& o) {
                   dataset->size());
     return 2;
   }
+  if (camera) {
+    // REP 103: the map is z-up. The first camera pose (optical: z forward,
+    // x right, y down) is taken as level, looking along the map's x axis.
+    frontend.setInitialPose(alg::levelOpticalInZUp());
+  }
   if (dataset && c.dataset.initial_pose == "ground_truth" && !ground_truth.empty()) {
     Eigen::Isometry3d T0;
     if (alg::interpolatePose(ground_truth, dataset->stamp(frames[0]), 200'000'000, T0)) {

@@ -37,6 +37,7 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
   p.domain_id = *domain;
   p.topic_prefix = c.dds.topic_prefix;
   p.frame_id = c.dds.frame_id;
+  p.child_frame_id = c.dds.child_frame_id;
   p.map_period_s = c.dds.map_period_s;
   p.trajectory_period_s = c.dds.trajectory_period_s;
   p.path_max_poses = c.dds.path_max_poses;
@@ -50,11 +51,11 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
 
 std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
   return fmt::format(
-      "dds: poses {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} MiB, "
+      "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} MiB, "
       "{:.1f} KiB/s over {:.1f} s), work items dropped {}, write errors {}\n"
       "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} ms in all); "
       "meshing and writing chunks {:.1f} ms in all on hx-publish\n",
-      s.poses, s.paths, s.health, s.map_updates, s.regions, s.chunks, static_cast<double>(s.chunk_bytes) / (1 << 20),
+      s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks, static_cast<double>(s.chunk_bytes) / (1 << 20),
       wall_s > 0 ? static_cast<double>(s.chunk_bytes) / 1024.0 / wall_s : 0.0, wall_s, s.items_dropped, s.write_errors,
       s.frame_cost_p50_ms, s.frame_cost_max_ms, s.snapshot_ms_total, s.mesh_ms_total);
 }
@@ -117,6 +118,12 @@ int echoCommand(const EchoOptions& o) {
       }
       case dds::Topic::kHealth:
         line = dds::describe(dds::fromWire(*static_cast<const hxmap_msgs_msg_dds__Health_*>(sample)));
+        break;
+      case dds::Topic::kTf:
+        for (const auto& t : dds::fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(sample))) {
+          if (!line.empty()) line += '\n';
+          line += dds::describe(t);
+        }
         break;
     }
     if (o.count > 0 && printed >= o.count) return;

@@ -317,12 +317,55 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
   EXPECT_LT((path.poses[1].T_world_cam.matrix() - poseAt(1).matrix()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):
+// frame_id -> child_frame_id per tracked frame, the camera's pose.
+TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
+  const std::string pre = prefix("tf");
+  PublisherParams p = params(pre);
+  p.child_frame_id = pre + "_camera_optical_frame";  // /tf is shared by every test process
+  auto pub = Publisher::start(p);
+  ASSERT_TRUE(pub) << pub.message();
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  EXPECT_EQ(topicName(Topic::kTf, pre), "rt/tf");
+  EXPECT_STREQ(topicType(Topic::kTf)->m_typename, "tf2_msgs::msg::dds_::TFMessage_");
+  auto reader = Reader::create(*participant, topicType(Topic::kTf), "rt/tf", {true, false, 100});
+  ASSERT_TRUE(reader) << reader.message();
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kTf) > 0 && reader->matchedWriters() > 0; }, 20));
+  alg::TsdfMap map(tsdfParams());
+  Trajectory trajectory;
+  std::map<int64_t, Eigen::Isometry3d> sent;
+  for (int k = 0; k < 10; ++k) {
+    FrameResult r = frame(k);
+    if (k == 3) r.tracked = false;
+    else sent[r.stamp_ns] = r.T_world_cam;
+    trajectory.push_back({r.stamp_ns, r.T_world_cam});
+    (*pub)->onFrame(r, map, trajectory, RunCounters{});
+  }
+  std::map<int64_t, TransformMessage> received;
+  ASSERT_TRUE(waitFor([&] {
+    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+      for (const auto& t : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
+        if (t.child_frame_id == p.child_frame_id) received[t.stamp_ns] = t;
+      }
+    });
+    return received.size() >= sent.size();
+  }, 20));
+  ASSERT_EQ(received.size(), 9u);
+  for (const auto& [stamp, t] : received) {
+    ASSERT_TRUE(sent.count(stamp)) << stamp;
+    EXPECT_EQ(t.frame_id, "map");
+    EXPECT_LT((t.T_parent_child.matrix() - sent[stamp].matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  }
+  EXPECT_EQ((*pub)->stats().transforms, 9u);
+}
+
 // ROS 2's readers accept XCDR1 only; Cyclone would pick XCDR2 by itself
 // for types that are not final.
 TEST(DdsLoopback, EveryWriterOffersXcdr1Only) {
   auto participant = Participant::create(kDomain);
   ASSERT_TRUE(participant) << participant.message();
-  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+  for (Topic t : kAllTopics) {
     auto w = Writer::create(*participant, topicType(t), topicName(t, prefix("xcdr")), topicQos(t));
     ASSERT_TRUE(w) << w.message();
     dds_qos_t* qos = dds_create_qos();

@@ -32,6 +32,12 @@ Eigen::Matrix3d leftJacobian(const Eigen::Vector3d& omega) {
 }
 }  // namespace
 
+Eigen::Isometry3d levelOpticalInZUp() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() << 0, 0, 1, -1, 0, 0, 0, -1, 0;  // columns: optical x, y, z in the z-up frame
+  return T;
+}
+
 Eigen::Isometry3d expSE3(const Vector6d& xi) {
   const Eigen::Vector3d omega = xi.head<3>();
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();

@@ -346,6 +346,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("domain_id", d.domain_id, -1, 232);
   v.name("topic_prefix", d.topic_prefix);
   v.name("frame_id", d.frame_id);
+  v.name("child_frame_id", d.child_frame_id);
   v.number("map_period_s", d.map_period_s, 0, 3600);
   v.number("trajectory_period_s", d.trajectory_period_s, 0, 3600);
   v.integer("path_max_poses", d.path_max_poses, 0, 10000000);

@@ -58,6 +58,7 @@ std::string stampText(int64_t ns) { return fmt::format("{}.{:09d}", ns / 1000000
 }  // namespace
 
 std::string topicName(Topic topic, const std::string& prefix) {
+  if (topic == Topic::kTf) return "rt/tf";
   return fmt::format("rt/{}/{}", prefix, topicShortName(topic));
 }
 
@@ -67,15 +68,16 @@ const char* topicShortName(Topic topic) {
     case Topic::kTrajectory: return "trajectory";
     case Topic::kMap: return "map";
     case Topic::kHealth: return "health";
+    case Topic::kTf: return "tf";
   }
   return "?";
 }
 
 Expected<Topic> topicFromString(const std::string& name) {
-  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+  for (Topic t : kAllTopics) {
     if (name == topicShortName(t)) return t;
   }
-  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health)", name)};
+  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health, tf)", name)};
 }
 
 TopicQos topicQos(Topic topic) {
@@ -84,6 +86,7 @@ TopicQos topicQos(Topic topic) {
     case Topic::kTrajectory: return {true, true, 1};
     case Topic::kMap: return {true, true, 1};
     case Topic::kHealth: return {true, true, 1};
+    case Topic::kTf: return {true, false, 100};  // as tf2_ros's TransformBroadcaster
   }
   return {};
 }
@@ -94,11 +97,25 @@ const dds_topic_descriptor_t* topicType(Topic topic) {
     case Topic::kTrajectory: return &nav_msgs_msg_dds__Path__desc;
     case Topic::kMap: return &hxmap_msgs_msg_dds__MapChunk__desc;
     case Topic::kHealth: return &hxmap_msgs_msg_dds__Health__desc;
+    case Topic::kTf: return &tf2_msgs_msg_dds__TFMessage__desc;
   }
   return nullptr;
 }
 
 PoseWire::PoseWire(const PoseMessage& m) { fillPose(wire, m.stamp_ns, m.frame_id, m.T_world_cam); }
+
+TfWire::TfWire(const TransformMessage& m) {
+  transform.header.stamp = toTime(m.stamp_ns);
+  transform.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  transform.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
+  const Eigen::Vector3d t = m.T_parent_child.translation();
+  const Eigen::Quaterniond q(m.T_parent_child.linear());
+  transform.transform.translation = {t.x(), t.y(), t.z()};
+  transform.transform.rotation = {q.x(), q.y(), q.z(), q.w()};
+  wire.transforms._maximum = wire.transforms._length = 1;
+  wire.transforms._buffer = &transform;
+  wire.transforms._release = false;
+}
 
 PathWire::PathWire(const PathMessage& m) : poses(m.poses.size()) {
   for (size_t i = 0; i < m.poses.size(); ++i) fillPose(poses[i], m.poses[i].stamp_ns, m.frame_id, m.poses[i].T_world_cam);
@@ -195,6 +212,31 @@ HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w) {
   m.latency_ms_max = w.latency_ms_max;
   m.frontend_ms_p50 = w.frontend_ms_p50;
   return m;
+}
+
+std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w) {
+  std::vector<TransformMessage> out;
+  for (uint32_t i = 0; i < w.transforms._length; ++i) {
+    const auto& t = w.transforms._buffer[i];
+    TransformMessage m;
+    m.stamp_ns = fromTime(t.header.stamp);
+    m.frame_id = str(t.header.frame_id);
+    m.child_frame_id = str(t.child_frame_id);
+    const auto& r = t.transform.rotation;
+    Eigen::Quaterniond q(r.w, r.x, r.y, r.z);
+    m.T_parent_child.linear() = q.normalized().toRotationMatrix();
+    m.T_parent_child.translation() = Eigen::Vector3d(t.transform.translation.x, t.transform.translation.y,
+                                                     t.transform.translation.z);
+    out.push_back(std::move(m));
+  }
+  return out;
+}
+
+std::string describe(const TransformMessage& m) {
+  const Eigen::Vector3d t = m.T_parent_child.translation();
+  const Eigen::Quaterniond q(m.T_parent_child.linear());
+  return fmt::format("tf {} {} -> {} t {:.6f} {:.6f} {:.6f} q {:.6f} {:.6f} {:.6f} {:.6f}", stampText(m.stamp_ns),
+                     m.frame_id, m.child_frame_id, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
 }
 
 std::string describe(const PoseMessage& m) {

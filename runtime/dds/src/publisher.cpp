@@ -45,7 +45,7 @@ Expected<std::unique_ptr<Publisher>> Publisher::start(const PublisherParams& par
   auto participant = Participant::create(params.domain_id);
   if (!participant) return participant.error();
   p->participant_ = std::move(*participant);
-  for (Topic t : {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth}) {
+  for (Topic t : kAllTopics) {
     auto w = Writer::create(p->participant_, topicType(t), topicName(t, params.topic_prefix), topicQos(t));
     if (!w) return w.error();
     p->writers_.push_back(std::move(*w));
@@ -152,6 +152,13 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
       ++poses_;
     } else {
       recordError(s);
+    }
+    const TransformMessage transform{result.stamp_ns, params_.frame_id, params_.child_frame_id, result.T_world_cam};
+    const TfWire tf(transform);  // points into `transform`
+    if (const Status st = writers_[static_cast<size_t>(Topic::kTf)].write(&tf.wire); st) {
+      ++transforms_;
+    } else {
+      recordError(st);
     }
   }
   auto due = [&](int64_t& last, double period_s) {
@@ -290,6 +297,7 @@ void Publisher::recordError(const Status& s) {
 PublisherStats Publisher::stats() const {
   PublisherStats s;
   s.poses = poses_;
+  s.transforms = transforms_;
   s.paths = paths_.load();
   s.health = health_.load();
   s.map_updates = map_updates_.load();

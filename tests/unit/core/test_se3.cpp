@@ -50,3 +50,11 @@ TEST(Camera, ProjectBackprojectAndLevels) {
 
 }  // namespace
 }  // namespace hxmap::alg
+
+TEST(Se3, ALevelOpticalCameraLooksAlongXInAZUpFrame) {
+  const Eigen::Isometry3d T = hxmap::alg::levelOpticalInZUp();
+  EXPECT_TRUE((T.linear() * Eigen::Vector3d::UnitZ()).isApprox(Eigen::Vector3d::UnitX()));   // forward
+  EXPECT_TRUE((T.linear() * Eigen::Vector3d::UnitY()).isApprox(-Eigen::Vector3d::UnitZ()));  // down
+  EXPECT_TRUE((T.linear() * Eigen::Vector3d::UnitX()).isApprox(-Eigen::Vector3d::UnitY()));  // right
+  EXPECT_NEAR(T.linear().determinant(), 1.0, 1e-12);
+}

@@ -17,6 +17,9 @@ Eigen::Vector3d logSO3(const Eigen::Matrix3d& R);
 
 /// Exponential and logarithm of SE(3) with the full left Jacobian.
 Eigen::Isometry3d expSE3(const Vector6d& xi);
+/// An optical camera (z forward, x right, y down) held level, in a z-up
+/// frame (REP 103: x forward, y left, z up) at its origin.
+Eigen::Isometry3d levelOpticalInZUp();
 Vector6d logSE3(const Eigen::Isometry3d& T);
 
 /// Rotation angle of T in radians and translation length in meters.

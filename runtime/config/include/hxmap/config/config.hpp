@@ -131,6 +131,7 @@ struct DdsConfig {
   int domain_id = -1;                  ///< -1: ROS_DOMAIN_ID from the environment (unset: 0)
   std::string topic_prefix = "hxmap";
   std::string frame_id = "map";        ///< header frame of poses and map
+  std::string child_frame_id = "hxmap_camera_optical_frame";  ///< the camera on /tf (optical convention)
   double map_period_s = 1.0;           ///< changed map regions go out at most this often
   double trajectory_period_s = 1.0;
   int path_max_poses = 900;            ///< the Path's newest poses (30 s at 30 FPS; 0: all)

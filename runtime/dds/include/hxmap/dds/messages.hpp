@@ -5,6 +5,7 @@
 //   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
 //   rt/<prefix>/map         hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
 //   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1
+//   rt/tf                   tf2_msgs/TFMessage         reliable, volatile, keep last 100 (as tf2's broadcaster)
 //
 // "rt/" is how ROS 2 names a topic on the DDS wire, and the type names are
 // ROS 2's (geometry_msgs::msg::dds_::PoseStamped_ ...), so `ros2 topic echo
@@ -24,11 +25,12 @@
 
 namespace hxmap::rt::dds {
 
-enum class Topic { kPose, kTrajectory, kMap, kHealth };
+enum class Topic { kPose, kTrajectory, kMap, kHealth, kTf };
+inline constexpr Topic kAllTopics[] = {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth, Topic::kTf};
 
-/// "rt/<prefix>/pose" and so on.
+/// "rt/<prefix>/pose" and so on; TF is ROS 2's one "rt/tf" whatever the prefix.
 std::string topicName(Topic topic, const std::string& prefix);
-/// Topic by its short name ("pose", "trajectory", "map", "health").
+/// Topic by its short name ("pose", "trajectory", "map", "health", "tf").
 Expected<Topic> topicFromString(const std::string& name);
 const char* topicShortName(Topic topic);
 TopicQos topicQos(Topic topic);
@@ -38,6 +40,13 @@ struct PoseMessage {
   int64_t stamp_ns = 0;
   std::string frame_id;
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+};
+
+/// One transform of /tf: `child_frame_id`'s pose in `frame_id`.
+struct TransformMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id, child_frame_id;
+  Eigen::Isometry3d T_parent_child = Eigen::Isometry3d::Identity();
 };
 
 struct PathMessage {
@@ -85,6 +94,11 @@ struct MapChunkWire {
   explicit MapChunkWire(const MapChunkMessage& m);
   hxmap_msgs_msg_dds__MapChunk_ wire{};
 };
+struct TfWire {
+  explicit TfWire(const TransformMessage& m);
+  geometry_msgs_msg_dds__TransformStamped_ transform{};
+  tf2_msgs_msg_dds__TFMessage_ wire{};
+};
 struct HealthWire {
   explicit HealthWire(const HealthMessage& m);
   hxmap_msgs_msg_dds__Health_ wire{};
@@ -96,11 +110,13 @@ PoseMessage fromWire(const geometry_msgs_msg_dds__PoseStamped_& w);
 PathMessage fromWire(const nav_msgs_msg_dds__Path_& w);
 Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w);
 HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w);
+std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w);
 
 /// One line of text per message, as `hxmap echo` prints them.
 std::string describe(const PoseMessage& m);
 std::string describe(const PathMessage& m);
 std::string describe(const MapChunkMessage& m);
 std::string describe(const HealthMessage& m);
+std::string describe(const TransformMessage& m);
 
 }  // namespace hxmap::rt::dds

@@ -39,6 +39,9 @@ struct PublisherParams {
   uint32_t domain_id = 0;
   std::string topic_prefix = "hxmap";
   std::string frame_id = "map";
+  /// The camera's frame on /tf (frame_id -> child_frame_id, the optical
+  /// convention: z forward, x right, y down, per REP 103's _optical suffix).
+  std::string child_frame_id = "hxmap_camera_optical_frame";
   double map_period_s = 1.0;         ///< changed regions go out at most this often
   double trajectory_period_s = 1.0;
   /// The Path carries the newest this many poses (0: all; the whole
@@ -54,7 +57,7 @@ struct PublisherParams {
 
 
 struct PublisherStats {
-  uint64_t poses = 0, paths = 0, health = 0;
+  uint64_t poses = 0, transforms = 0, paths = 0, health = 0;
   uint64_t map_updates = 0;     ///< snapshots meshed and written
   uint64_t regions = 0;         ///< region meshes written
   uint64_t chunks = 0;          ///< chunk samples written (empty ones included)
@@ -117,7 +120,7 @@ class Publisher {
   double snapshot_ms_total_ = 0;
   std::vector<double> period_latency_ms_, period_frontend_ms_;
   uint64_t frames_ = 0, frames_lost_ = 0, keyframes_ = 0, period_frames_ = 0;
-  uint64_t poses_ = 0, items_dropped_ = 0;
+  uint64_t poses_ = 0, transforms_ = 0, items_dropped_ = 0;
 
   // Publisher thread (read by stats() after a flush).
   struct RegionState {
