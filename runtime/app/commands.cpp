@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <csignal>
+#include <ctime>
 #include <filesystem>
 #include <optional>
 
@@ -192,6 +193,15 @@ std::string trackingSummary(const Frontend& frontend) {
       t.velocity_retries, t.velocity_wins, t.photometric_scale_m);
 }
 
+// CLOCK_REALTIME - CLOCK_MONOTONIC now: live cameras stamp frames on the
+// monotonic clock, ROS 2 nodes on the real-time one.
+[[maybe_unused]] int64_t realtimeMinusMonotonicNs() {
+  timespec mono{}, real{};
+  clock_gettime(CLOCK_MONOTONIC, &mono);
+  clock_gettime(CLOCK_REALTIME, &real);
+  return (int64_t{real.tv_sec} - int64_t{mono.tv_sec}) * 1'000'000'000 + (int64_t{real.tv_nsec} - int64_t{mono.tv_nsec});
+}
+
 std::string loopClosureSummary(const Frontend& frontend) {
   const LoopClosureCounters& l = frontend.loopClosureCounters();
   return fmt::format(
@@ -329,6 +339,7 @@ int runCommand(const RunOptions& o) {
       spdlog::error("{}", params.message());
       return 2;
     }
+    if (camera) params->stamp_offset_ns = realtimeMinusMonotonicNs();
     auto started = dds::Publisher::start(*params);
     if (!started) {
       spdlog::error("{}", started.message());

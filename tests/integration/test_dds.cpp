@@ -323,6 +323,7 @@ TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
   const std::string pre = prefix("tf");
   PublisherParams p = params(pre);
   p.child_frame_id = pre + "_camera_optical_frame";  // /tf is shared by every test process
+  p.stamp_offset_ns = 86'400'000'000'000;  // as a live camera's monotonic stamps are moved to the ROS epoch
   auto pub = Publisher::start(p);
   ASSERT_TRUE(pub) << pub.message();
   auto participant = Participant::create(kDomain);
@@ -338,7 +339,7 @@ TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
   for (int k = 0; k < 10; ++k) {
     FrameResult r = frame(k);
     if (k == 3) r.tracked = false;
-    else sent[r.stamp_ns] = r.T_world_cam;
+    else sent[r.stamp_ns + p.stamp_offset_ns] = r.T_world_cam;
     trajectory.push_back({r.stamp_ns, r.T_world_cam});
     (*pub)->onFrame(r, map, trajectory, RunCounters{});
   }

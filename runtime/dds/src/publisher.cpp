@@ -101,6 +101,7 @@ void Publisher::queuePath(const Trajectory& trajectory, int64_t stamp_ns, bool m
   const size_t keep = params_.path_max_poses > 0 ? static_cast<size_t>(params_.path_max_poses) : trajectory.size();
   const size_t first = trajectory.size() > keep ? trajectory.size() - keep : 0;
   work->path.poses.assign(trajectory.begin() + static_cast<std::ptrdiff_t>(first), trajectory.end());
+  for (auto& p : work->path.poses) p.stamp_ns += params_.stamp_offset_ns;
   push(std::move(work), must);
 }
 
@@ -144,8 +145,9 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
   for (double ms : result.stage_ms) frontend_ms += ms;
   period_frontend_ms_.push_back(frontend_ms);
   period_latency_ms_.push_back(counters.latency_ms);
+  const int64_t stamp = result.stamp_ns + params_.stamp_offset_ns;
   if (result.tracked) {
-    PoseMessage pose{result.stamp_ns, params_.frame_id, result.T_world_cam};
+    PoseMessage pose{stamp, params_.frame_id, result.T_world_cam};
     const PoseWire wire(pose);
     const Status s = writers_[static_cast<size_t>(Topic::kPose)].write(&wire.wire);
     if (s) {
@@ -153,7 +155,7 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
     } else {
       recordError(s);
     }
-    const TransformMessage transform{result.stamp_ns, params_.frame_id, params_.child_frame_id, result.T_world_cam};
+    const TransformMessage transform{stamp, params_.frame_id, params_.child_frame_id, result.T_world_cam};
     const TfWire tf(transform);  // points into `transform`
     if (const Status st = writers_[static_cast<size_t>(Topic::kTf)].write(&tf.wire); st) {
       ++transforms_;
@@ -166,17 +168,17 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
     last = t0;
     return true;
   };
-  if (due(last_map_ns_, params_.map_period_s)) snapshotMap(map, result.stamp_ns, false);
-  if (due(last_path_ns_, params_.trajectory_period_s)) queuePath(trajectory, result.stamp_ns, false);
+  if (due(last_map_ns_, params_.map_period_s)) snapshotMap(map, stamp, false);
+  if (due(last_path_ns_, params_.trajectory_period_s)) queuePath(trajectory, stamp, false);
   if (last_health_ns_ == 0) last_health_ns_ = t0;
-  if (static_cast<double>(t0 - last_health_ns_) >= params_.health_period_s * 1e9) queueHealth(counters, result.stamp_ns, false);
+  if (static_cast<double>(t0 - last_health_ns_) >= params_.health_period_s * 1e9) queueHealth(counters, stamp, false);
   // Bounded on long runs: the figures cover the last 50k to 100k frames.
   if (frame_cost_ms_.size() >= 100000) frame_cost_ms_.erase(frame_cost_ms_.begin(), frame_cost_ms_.begin() + 50000);
   frame_cost_ms_.push_back(static_cast<double>(nowNs() - t0) * 1e-6);
 }
 
 void Publisher::flush(const alg::TsdfMap& map, const Trajectory& trajectory, const RunCounters& counters) {
-  const int64_t stamp = trajectory.empty() ? 0 : trajectory.back().stamp_ns;
+  const int64_t stamp = trajectory.empty() ? 0 : trajectory.back().stamp_ns + params_.stamp_offset_ns;
   snapshotMap(map, stamp, true);
   queuePath(trajectory, stamp, true);
   queueHealth(counters, stamp, true);

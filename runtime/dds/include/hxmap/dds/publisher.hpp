@@ -42,6 +42,10 @@ struct PublisherParams {
   /// The camera's frame on /tf (frame_id -> child_frame_id, the optical
   /// convention: z forward, x right, y down, per REP 103's _optical suffix).
   std::string child_frame_id = "hxmap_camera_optical_frame";
+  /// Added to every stamp sent: 0 for recordings (their recorded stamps);
+  /// for live cameras, whose stamps are CLOCK_MONOTONIC, the offset of
+  /// CLOCK_REALTIME from it, so that stamps are in the ROS clock's epoch.
+  int64_t stamp_offset_ns = 0;
   double map_period_s = 1.0;         ///< changed regions go out at most this often
   double trajectory_period_s = 1.0;
   /// The Path carries the newest this many poses (0: all; the whole
