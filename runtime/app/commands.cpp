@@ -209,13 +209,13 @@ std::string loopClosureSummary(const Frontend& frontend) {
       "bound, {} refused by the ICP check, {} refused by the pose graph, {} already consistent, {} closed (largest correction {:.1f} cm, {:.2f} "
       "deg); pose graph {} keyframes, cost {:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes "
       "replaced by their alignment {} times ({} alignments failed); map rebuilt {} times from {} "
-      "keyframe observations in {:.0f} ms; {} refinement results dropped as stale\n",
+      "keyframe observations in {:.0f} ms ({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
       l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.candidates, l.refused_drift,
       l.refused_icp,
       l.refused_graph, l.consistent, l.closures, 100 * l.largest_correction_m, l.largest_correction_deg,
       frontend.poseGraph().nodes().size(), l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps,
-      l.odometry_unverified, l.closures, l.keyframes_rebuilt,
-      l.rebuild_ms, l.stale_refinements);
+      l.odometry_unverified, l.closures, l.keyframes_rebuilt, l.rebuild_ms, frontend.loopObservations().first,
+      static_cast<double>(frontend.loopObservations().second) / (1 << 20), l.stale_refinements);
 }
 
 }  // namespace

@@ -217,6 +217,15 @@ void Frontend::applyGraph(Eigen::Isometry3d& T_world_kf) {
   renderModel(last_frame_, T_last_);
 }
 
+std::pair<size_t, size_t> Frontend::loopObservations() const {
+  size_t bytes = 0;
+  for (const auto& [id, o] : loop_observations_) {
+    bytes += o.depth_m.total() * o.depth_m.elemSize() + o.rgb.total() * o.rgb.elemSize() +
+             o.confidence.total() * o.confidence.elemSize();
+  }
+  return {loop_observations_.size(), bytes};
+}
+
 void Frontend::rebuildMap() {
   const auto t0 = std::chrono::steady_clock::now();
   alg::TsdfMap rebuilt(params_.tsdf);

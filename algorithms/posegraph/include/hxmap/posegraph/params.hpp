@@ -52,9 +52,9 @@ struct LoopClosureParams {
   double min_correction_m = 0.02;
   double min_correction_deg = 1.0;
   /// Keyframe observations kept to rebuild the map after a closure (the
-  /// images fusion read, about 2.4 MB each at 640x480); past it, every
-  /// other one of the older half is let go.
-  int max_stored_keyframes = 200;
+  /// images fusion read, about 2.4 MB each at 640x480: 290 MB at most);
+  /// past it, every other one of the older half is let go.
+  int max_stored_keyframes = 120;
 };
 
 }  // namespace hxmap::alg

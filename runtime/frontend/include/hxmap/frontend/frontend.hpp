@@ -292,6 +292,8 @@ class Frontend {
   }
   const alg::KeyframeDatabase& keyframeDatabase() const { return keyframe_db_; }
   const LoopClosureCounters& loopClosureCounters() const { return loop_counters_; }
+  /// Keyframe observations stored for rebuilds, and their bytes.
+  std::pair<size_t, size_t> loopObservations() const;
   const alg::PoseGraph& poseGraph() const { return pose_graph_; }
   size_t keyframes() const { return keyframes_; }
 
