@@ -271,6 +271,17 @@ TEST_F(Pipeline, CorruptFramesNeverCrash) {
   EXPECT_TRUE(r5.tracked) << r5.failure;
 }
 
+// A synthetic sequence of `frames` frames seen by kCam in a fresh folder
+// (empty when it could not be written).
+std::string syntheticSequence(const char* name, int frames,
+                         const drv::SyntheticScene& scene = drv::SyntheticScene::room()) {
+  const std::string dir = test::tempDir(name);
+  drv::SyntheticParams sp;
+  sp.frames = frames;
+  sp.camera = kCam;
+  return drv::writeSyntheticSequence(dir, scene, sp) ? dir : std::string();
+}
+
 namespace {
 // The program's exit status and what it printed (stdout and stderr).
 std::pair<int, std::string> runProgram(const std::string& args) {
@@ -296,11 +307,8 @@ TEST(Program, VersionAndUsageErrorsHaveTheDocumentedExitCodes) {
 }
 
 TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
-  const std::string data = test::tempDir("seq"), out = test::tempDir("out");
-  drv::SyntheticParams sp;
-  sp.frames = 12;
-  sp.camera = kCam;
-  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  const std::string data = syntheticSequence("seq", 12), out = test::tempDir("out");
+  ASSERT_FALSE(data.empty());
   // Corrupt the 6th color image.
   std::string sixth;
   {
@@ -346,11 +354,8 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
 }
 
 TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
-  const std::string data = test::tempDir("seq_dark"), out = test::tempDir("out_dark");
-  drv::SyntheticParams sp;
-  sp.frames = 4;
-  sp.camera = kCam;
-  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  const std::string data = syntheticSequence("seq_dark", 4), out = test::tempDir("out_dark");
+  ASSERT_FALSE(data.empty());
   // Every depth image all zero: no frame can be tracked or fused.
   for (const auto& entry : std::filesystem::directory_iterator(data + "/depth")) {
     ASSERT_TRUE(cv::imwrite(entry.path().string(), cv::Mat(kCam.height, kCam.width, CV_16U, cv::Scalar(0))));
@@ -366,11 +371,8 @@ TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
 }
 
 TEST(RunCommand, AnOutputThatCannotBeWrittenLeavesNoTemporaryAndIsNotListed) {
-  const std::string data = test::tempDir("seq_out"), out = test::tempDir("out_blocked");
-  drv::SyntheticParams sp;
-  sp.frames = 3;
-  sp.camera = kCam;
-  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::room(), sp));
+  const std::string data = syntheticSequence("seq_out", 3), out = test::tempDir("out_blocked");
+  ASSERT_FALSE(data.empty());
   // A folder where the mesh should go: the rename onto it fails.
   std::filesystem::create_directories(out + "/mesh.ply/keep");
   RunOptions o;
@@ -403,11 +405,8 @@ TEST(RunCommand, OfflineRunsGiveTheSameOutputsUnderLoad) {
   // Refinement jobs with a wall-clock budget far below their cost: offline
   // they run to their iteration cap all the same, so a run beside a CPU
   // burner writes the same trajectory and mesh, byte for byte.
-  const std::string data = test::tempDir("seq_det");
-  drv::SyntheticParams sp;
-  sp.frames = 24;
-  sp.camera = kCam;
-  ASSERT_TRUE(drv::writeSyntheticSequence(data, drv::SyntheticScene::qualityRoom(), sp));
+  const std::string data = syntheticSequence("seq_det", 24, drv::SyntheticScene::qualityRoom());
+  ASSERT_FALSE(data.empty());
   const std::string cfg = data + "/budget.yaml";
   std::ofstream(cfg) << "refine:\n  time_budget_ms: 5\n  iterations: 30\n";
   auto run = [&](const std::string& out) {
@@ -453,11 +452,8 @@ TEST(RunCommand, BadConfigAndMissingDatasetAreUsageErrors) {
   EXPECT_EQ(runCommand(o), 2);
   // A trace that could not be written is refused before the run, not after.
   o.config.clear();
-  o.dataset = test::tempDir("seq_for_trace");
-  drv::SyntheticParams sp;
-  sp.frames = 2;
-  sp.camera = kCam;
-  ASSERT_TRUE(drv::writeSyntheticSequence(o.dataset, drv::SyntheticScene::room(), sp));
+  o.dataset = syntheticSequence("seq_for_trace", 2);
+  ASSERT_FALSE(o.dataset.empty());
   o.trace = "/nonexistent/folder/trace.json";
   EXPECT_EQ(runCommand(o), 2);
   EXPECT_FALSE(std::filesystem::exists(o.out_dir + "/summary.txt"));
