@@ -203,19 +203,21 @@ std::string trackingSummary(const Frontend& frontend) {
 }
 
 std::string loopClosureSummary(const Frontend& frontend) {
-  const LoopClosureCounters& l = frontend.loopClosureCounters();
+  const LoopClosureCounters l = frontend.loopClosureCounters();
+  const LoopCloser* closer = frontend.loopCloser();
+  const auto [stored, bytes] = closer ? closer->observations() : std::pair<size_t, size_t>{0, 0};
   return fmt::format(
-      "loop closure: {} keyframes compared with older ones ({:.1f} ms each), {} candidates: {} beyond the drift "
-      "bound, {} refused by the ICP check, {} refused by the pose graph, {} already consistent, {} closed (largest correction {:.1f} cm, {:.2f} "
-      "deg); pose graph {} keyframes, cost {:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes "
-      "replaced by their alignment {} times ({} alignments failed); map rebuilt {} times from {} "
-      "keyframe observations in {:.0f} ms ({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
-      l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.candidates, l.refused_drift,
-      l.refused_icp,
-      l.refused_graph, l.consistent, l.closures, 100 * l.largest_correction_m, l.largest_correction_deg,
-      frontend.poseGraph().nodes().size(), l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps,
-      l.odometry_unverified, l.closures, l.keyframes_rebuilt, l.rebuild_ms, frontend.loopObservations().first,
-      static_cast<double>(frontend.loopObservations().second) / (1 << 20), l.stale_refinements);
+      "loop closure: {} keyframes, {} compared with older ones ({:.1f} ms each; {} skipped behind newer ones, {} shed), "
+      "{} candidates: {} beyond the drift bound, {} refused by the ICP check, {} refused by the pose graph, {} already "
+      "consistent, {} closed and {} applied (largest correction {:.1f} cm, {:.2f} deg); pose graph {} keyframes, cost "
+      "{:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes replaced by their alignment {} times ({} "
+      "alignments failed); keyframe map fused in {:.0f} ms, rebuilt {} times from {} keyframe observations in {:.0f} ms "
+      "({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
+      l.keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.skipped, l.shed,
+      l.candidates, l.refused_drift, l.refused_icp, l.refused_graph, l.consistent, l.closures, l.applied,
+      100 * l.largest_correction_m, l.largest_correction_deg, closer ? closer->graph().nodes().size() : 0,
+      l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps, l.odometry_unverified, l.fuse_ms, l.closures,
+      l.keyframes_rebuilt, l.rebuild_ms, stored, static_cast<double>(bytes) / (1 << 20), l.stale_refinements);
 }
 
 }  // namespace
@@ -324,12 +326,6 @@ int runCommand(const RunOptions& o) {
 
   const ParallelFor parallel = makeParallelFor(c.runtime.threads);
   FrontendParams fp = frontendParams(c);
-  if (realtime && fp.loop_closure.enabled) {
-    // Detection, verification and the map's rebuild run inline on the
-    // keyframe today: tens of ms to seconds, more than a frame's deadline.
-    spdlog::info("loop closure is off in real-time runs (it runs in offline runs only, for now)");
-    fp.loop_closure.enabled = false;
-  }
   Frontend frontend(cam, fp, parallel);
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
@@ -622,7 +618,7 @@ int runCommand(const RunOptions& o) {
   if (fp.loop_closure.enabled) summary += loopClosureSummary(frontend);
   if (!ground_truth.empty()) {
     summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
-    if (frontend.loopClosureCounters().closures > 0) {
+    if (frontend.loopClosureCounters().applied > 0) {
       summary += "as published live (trajectory_live.txt):\n" + trajectoryMetricsText(live, ground_truth, c.eval.rpe_delta_s);
     }
   }

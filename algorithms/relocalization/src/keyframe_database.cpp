@@ -131,106 +131,134 @@ void KeyframeDatabase::evictOne() {
 std::vector<RelocalizationCandidate> KeyframeDatabase::query(const FrameFeatures& frame, const PinholeCamera& camera,
                                                              const Eigen::Isometry3d& near, uint64_t round,
                                                              std::string* why, uint32_t max_id) const {
-  std::vector<RelocalizationCandidate> out;
-  auto fail = [&](const std::string& reason) {
-    if (why) *why = reason;
-    return out;
+  KeyframeQuery q(*this, frame, camera, near, round, max_id);
+  while (q.step()) {
+  }
+  return q.candidates(why);
+}
+
+KeyframeQuery::KeyframeQuery(const KeyframeDatabase& db, const FrameFeatures& frame, const PinholeCamera& camera,
+                             const Eigen::Isometry3d& near, uint64_t round, uint32_t max_id)
+    : db_(&db), frame_(&frame), K_(camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1) {
+  const auto& keyframes = db.keyframes_;
+  const RelocalizationParams& params = db.params_;
+  auto fail = [&](std::string reason) {
+    why_ = std::move(reason);
+    done_ = true;
   };
-  if (keyframes_.empty()) return fail("no keyframes kept yet");
-  if (frame.descriptors.rows < params_.min_matches) {
-    return fail("too few features in the frame (" + std::to_string(frame.descriptors.rows) + ")");
+  if (keyframes.empty()) {
+    fail("no keyframes kept yet");
+    return;
+  }
+  if (frame.descriptors.rows < params.min_matches) {
+    fail("too few features in the frame (" + std::to_string(frame.descriptors.rows) + ")");
+    return;
   }
   // Which keyframes: the nearest to `near`, then a turn of the rest.
   std::vector<size_t> order;
-  for (size_t i = 0; i < keyframes_.size(); ++i) {
-    if (keyframes_[i].id <= max_id) order.push_back(i);
+  for (size_t i = 0; i < keyframes.size(); ++i) {
+    if (keyframes[i].id <= max_id) order.push_back(i);
   }
-  if (order.empty()) return fail("no keyframe old enough");
-  std::vector<size_t> chosen;
-  if (params_.candidates <= 0 || static_cast<int>(order.size()) <= params_.candidates) {
-    chosen = order;
-  } else {
-    std::vector<double> d(keyframes_.size());
-    for (size_t i : order) d[i] = poseDistance(near, keyframes_[i].T_world_cam);
-    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
-    const size_t nearest = static_cast<size_t>(params_.candidates) / 2;
-    chosen.assign(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(nearest));
-    const size_t rest = order.size() - nearest;
-    const size_t turn = static_cast<size_t>(params_.candidates) - nearest;
-    for (size_t k = 0; k < turn && k < rest; ++k) {
-      chosen.push_back(order[nearest + (round * turn + k) % rest]);
+  eligible_ = order.size();
+  if (order.empty()) {
+    fail("no keyframe old enough");
+    return;
+  }
+  if (params.candidates <= 0 || static_cast<int>(order.size()) <= params.candidates) {
+    chosen_ = order;
+    return;
+  }
+  std::vector<double> d(keyframes.size());
+  for (size_t i : order) d[i] = poseDistance(near, keyframes[i].T_world_cam);
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
+  const size_t nearest = static_cast<size_t>(params.candidates) / 2;
+  chosen_.assign(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(nearest));
+  const size_t rest = order.size() - nearest;
+  const size_t turn = static_cast<size_t>(params.candidates) - nearest;
+  for (size_t k = 0; k < turn && k < rest; ++k) chosen_.push_back(order[nearest + (round * turn + k) % rest]);
+}
+
+bool KeyframeQuery::step() {
+  if (done_) return false;
+  const RelocalizationParams& params = db_->params_;
+  if (!pnp_phase_) {
+    // Match one chosen keyframe; once all are matched, PnP runs on the ones
+    // with the most matches (RANSAC is the costly part).
+    if (next_match_ < chosen_.size()) {
+      const size_t i = chosen_[next_match_++];
+      const KeyframeDatabase::Entry& e = db_->keyframes_[i];
+      const std::vector<Nearest2> nearest = nearestTwo(frame_->descriptors, e.descriptors);
+      Matched m;
+      m.index = i;
+      for (size_t q = 0; q < nearest.size(); ++q) {
+        const Nearest2& n = nearest[q];
+        if (n.index < 0 || n.second >= (1 << 30) || n.best >= params.ratio_test * n.second) continue;
+        const Eigen::Vector3f p = e.points_cam[static_cast<size_t>(n.index)];
+        m.object.emplace_back(p.x(), p.y(), p.z());  // in the keyframe's camera frame
+        m.image.push_back(frame_->pixels[q]);
+      }
+      best_matches_ = std::max(best_matches_, static_cast<int>(m.object.size()));
+      if (static_cast<int>(m.object.size()) >= params.min_matches) matched_.push_back(std::move(m));
+      return true;
     }
-  }
-  const cv::Matx33d K(camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
-  // Match every chosen keyframe, then run PnP on the ones with the most
-  // matches (RANSAC is the costly part).
-  struct Matched {
-    size_t index = 0;
-    std::vector<cv::Point3f> object;
-    std::vector<cv::Point2f> image;
-  };
-  std::vector<Matched> matched;
-  int best_matches = 0, best_inliers = 0;
-  for (size_t i : chosen) {
-    const Entry& e = keyframes_[i];
-    const std::vector<Nearest2> nearest = nearestTwo(frame.descriptors, e.descriptors);
-    Matched m;
-    m.index = i;
-    for (size_t q = 0; q < nearest.size(); ++q) {
-      const Nearest2& n = nearest[q];
-      if (n.index < 0 || n.second >= (1 << 30) || n.best >= params_.ratio_test * n.second) continue;
-      const Eigen::Vector3f p = e.points_cam[static_cast<size_t>(n.index)];
-      m.object.emplace_back(p.x(), p.y(), p.z());  // in the keyframe's camera frame
-      m.image.push_back(frame.pixels[q]);
+    std::sort(matched_.begin(), matched_.end(),
+              [](const Matched& a, const Matched& b) { return a.object.size() > b.object.size(); });
+    if (static_cast<int>(matched_.size()) > std::max(1, params.pnp_candidates)) {
+      matched_.resize(static_cast<size_t>(std::max(1, params.pnp_candidates)));
     }
-    best_matches = std::max(best_matches, static_cast<int>(m.object.size()));
-    if (static_cast<int>(m.object.size()) >= params_.min_matches) matched.push_back(std::move(m));
+    pnp_phase_ = true;
   }
-  std::sort(matched.begin(), matched.end(),
-            [](const Matched& a, const Matched& b) { return a.object.size() > b.object.size(); });
-  if (static_cast<int>(matched.size()) > std::max(1, params_.pnp_candidates)) matched.resize(std::max(1, params_.pnp_candidates));
-  for (const Matched& m : matched) {
-    const Entry& e = keyframes_[m.index];
-    const std::vector<cv::Point3f>& object = m.object;
-    const std::vector<cv::Point2f>& image = m.image;
-    const int matches = static_cast<int>(object.size());
-    cv::Mat rvec, tvec;
-    std::vector<int> inliers;
-    const bool ok = cv::solvePnPRansac(object, image, K, cv::noArray(), rvec, tvec, false, params_.pnp_iterations,
-                                       static_cast<float>(params_.pnp_reprojection_px), 0.99, inliers,
-                                       cv::SOLVEPNP_EPNP);
-    best_inliers = std::max(best_inliers, static_cast<int>(inliers.size()));
-    if (!ok || static_cast<int>(inliers.size()) < params_.min_pnp_inliers) continue;
-    // Refine on the inliers (Levenberg-Marquardt from the RANSAC pose).
-    std::vector<cv::Point3f> obj_in;
-    std::vector<cv::Point2f> img_in;
-    for (int k : inliers) {
-      obj_in.push_back(object[static_cast<size_t>(k)]);
-      img_in.push_back(image[static_cast<size_t>(k)]);
-    }
-    cv::solvePnPRefineLM(obj_in, img_in, K, cv::noArray(), rvec, tvec);
-    cv::Mat R;
-    cv::Rodrigues(rvec, R);
-    Eigen::Matrix3d Re;
-    cv::cv2eigen(R, Re);
-    Eigen::Isometry3d T_cam_kf = Eigen::Isometry3d::Identity();  // keyframe camera -> frame camera
-    T_cam_kf.linear() = Re;
-    T_cam_kf.translation() = Eigen::Vector3d(tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2));
-    if (!T_cam_kf.matrix().allFinite()) continue;
-    RelocalizationCandidate c;
-    c.keyframe_id = e.id;
-    c.T_world_cam = e.T_world_cam * T_cam_kf.inverse();
-    c.matches = matches;
-    c.pnp_inliers = static_cast<int>(inliers.size());
-    out.push_back(c);
+  if (next_pnp_ >= matched_.size()) {
+    finish();
+    return false;
   }
-  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.pnp_inliers > b.pnp_inliers; });
-  if (out.empty()) {
-    return fail("no keyframe agrees (" + std::to_string(chosen.size()) + " of " + std::to_string(order.size()) +
-                " matched; best " + std::to_string(best_matches) + " matches, " + std::to_string(best_inliers) +
-                " PnP inliers)");
+  const Matched& m = matched_[next_pnp_++];
+  const KeyframeDatabase::Entry& e = db_->keyframes_[m.index];
+  const int matches = static_cast<int>(m.object.size());
+  cv::Mat rvec, tvec;
+  std::vector<int> inliers;
+  const bool ok = cv::solvePnPRansac(m.object, m.image, K_, cv::noArray(), rvec, tvec, false, params.pnp_iterations,
+                                     static_cast<float>(params.pnp_reprojection_px), 0.99, inliers, cv::SOLVEPNP_EPNP);
+  best_inliers_ = std::max(best_inliers_, static_cast<int>(inliers.size()));
+  if (!ok || static_cast<int>(inliers.size()) < params.min_pnp_inliers) return true;
+  // Refine on the inliers (Levenberg-Marquardt from the RANSAC pose).
+  std::vector<cv::Point3f> obj_in;
+  std::vector<cv::Point2f> img_in;
+  for (int k : inliers) {
+    obj_in.push_back(m.object[static_cast<size_t>(k)]);
+    img_in.push_back(m.image[static_cast<size_t>(k)]);
   }
-  return out;
+  cv::solvePnPRefineLM(obj_in, img_in, K_, cv::noArray(), rvec, tvec);
+  cv::Mat R;
+  cv::Rodrigues(rvec, R);
+  Eigen::Matrix3d Re;
+  cv::cv2eigen(R, Re);
+  Eigen::Isometry3d T_cam_kf = Eigen::Isometry3d::Identity();  // keyframe camera -> frame camera
+  T_cam_kf.linear() = Re;
+  T_cam_kf.translation() = Eigen::Vector3d(tvec.at<double>(0), tvec.at<double>(1), tvec.at<double>(2));
+  if (!T_cam_kf.matrix().allFinite()) return true;
+  RelocalizationCandidate c;
+  c.keyframe_id = e.id;
+  c.T_world_cam = e.T_world_cam * T_cam_kf.inverse();
+  c.matches = matches;
+  c.pnp_inliers = static_cast<int>(inliers.size());
+  out_.push_back(c);
+  return true;
+}
+
+void KeyframeQuery::finish() {
+  done_ = true;
+  std::sort(out_.begin(), out_.end(), [](const auto& a, const auto& b) { return a.pnp_inliers > b.pnp_inliers; });
+  if (out_.empty()) {
+    why_ = "no keyframe agrees (" + std::to_string(chosen_.size()) + " of " + std::to_string(eligible_) +
+           " matched; best " + std::to_string(best_matches_) + " matches, " + std::to_string(best_inliers_) +
+           " PnP inliers)";
+  }
+}
+
+const std::vector<RelocalizationCandidate>& KeyframeQuery::candidates(std::string* why) const {
+  if (why && out_.empty()) *why = why_;
+  return out_;
 }
 
 }  // namespace hxmap::alg

@@ -45,6 +45,11 @@ Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& param
   // One noise model for preprocessing and tracking's gates.
   params_.tracking.noise_sigma_a_m = params_.preprocess.noise_sigma_a_m;
   params_.tracking.noise_sigma_b_per_m = params_.preprocess.noise_sigma_b_per_m;
+  if (params_.loop_closure.enabled && params_.relocalization.enabled) {
+    loop_closer_ = std::make_unique<LoopCloser>(
+        LoopCloserParams{params_.loop_closure, params_.relocalization, params_.tracking, params_.tsdf, params_.raycast},
+        camera_, parallel_);
+  }
 }
 
 void Frontend::warmUp() {
@@ -162,6 +167,8 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
     renderModel(last_frame_, T_last_);
   }
 
+  trajectory_.push_back({r.stamp_ns, T});
+
   // 5. Keyframes by motion and time.
   if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, r.stamp_ns, params_.tracking,
                                           last_kf_depth_m_, params_.tsdf.voxel_size_m)) {
@@ -196,19 +203,19 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
         features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
       }
       r.stage_ms[kKeyframe] += features_ms;
+      // 6. Loop closure: a closure found now moves this frame too.
       if (params_.loop_closure.enabled) {
         double loop_ms = 0;
         {
           StageTimer t(loop_ms);
-          closeLoop(r.keyframe_id, features, previous_kf, T_previous_kf, T_previous_kf_color, T);
+          sendToLoopCloser(r.keyframe_id, std::move(features), previous_kf, T_previous_kf, T_previous_kf_color, T);
         }
         r.stage_ms[kKeyframe] += loop_ms;
-        r.T_world_cam = T;
+        r.T_world_cam = trajectory_.back().T_world_cam;
       }
     }
   }
   initialized_ = true;
-  trajectory_.push_back({r.stamp_ns, T});
   return r;
 }
 
@@ -436,7 +443,7 @@ void Frontend::keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::Ic
   const alg::FeedbackParams& fp = params_.feedback;
   KeptKeyframe k;
   k.id = id;
-  k.trajectory_index = trajectory_.size();  // this frame's entry is appended last
+  k.trajectory_index = trajectory_.size() - 1;  // this frame's entry
   k.T_fused = T_last_;
   // The buffers fusion read (a frame's buffers are never written after preprocessing).
   k.observation = {last_frame_.depth_m, last_frame_.rgb, last_frame_.levels[last_frame_.finest].confidence, camera_,

@@ -42,6 +42,8 @@ struct RelocalizationCandidate {
   int pnp_inliers = 0;   ///< RANSAC consensus
 };
 
+class KeyframeQuery;
+
 class KeyframeDatabase {
  public:
   explicit KeyframeDatabase(const RelocalizationParams& params = {}) : params_(params) {}
@@ -69,6 +71,7 @@ class KeyframeDatabase {
   const RelocalizationParams& params() const { return params_; }
 
  private:
+  friend class KeyframeQuery;
   struct Entry {
     uint32_t id = 0;
     Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
@@ -79,6 +82,45 @@ class KeyframeDatabase {
 
   RelocalizationParams params_;
   std::vector<Entry> keyframes_;  ///< oldest first
+};
+
+/// One query of a database, run in steps (KeyframeDatabase::query runs
+/// them all at once): each step matches one chosen keyframe's descriptors
+/// or runs PnP + RANSAC on one matched keyframe, a few milliseconds each,
+/// so a background thread can run one step per slice its scheduler admits.
+/// The database must not change while a query on it is under way (one
+/// thread owns both).
+class KeyframeQuery {
+ public:
+  /// Arguments as KeyframeDatabase::query's.
+  KeyframeQuery(const KeyframeDatabase& db, const FrameFeatures& frame, const PinholeCamera& camera,
+                const Eigen::Isometry3d& near, uint64_t round, uint32_t max_id = UINT32_MAX);
+  /// Runs the next step; false when nothing was left to run.
+  bool step();
+  bool done() const { return done_; }
+  /// The candidates found, best first (final once done()); `why` receives
+  /// the reason when there are none.
+  const std::vector<RelocalizationCandidate>& candidates(std::string* why = nullptr) const;
+
+ private:
+  struct Matched {
+    size_t index = 0;
+    std::vector<cv::Point3f> object;
+    std::vector<cv::Point2f> image;
+  };
+  void finish();
+
+  const KeyframeDatabase* db_;
+  const FrameFeatures* frame_;
+  cv::Matx33d K_;
+  std::vector<size_t> chosen_;  ///< database indices to match
+  size_t eligible_ = 0;         ///< keyframes old enough
+  size_t next_match_ = 0, next_pnp_ = 0;
+  std::vector<Matched> matched_;
+  bool pnp_phase_ = false, done_ = false;
+  int best_matches_ = 0, best_inliers_ = 0;
+  std::string why_;
+  std::vector<RelocalizationCandidate> out_;
 };
 
 }  // namespace hxmap::alg

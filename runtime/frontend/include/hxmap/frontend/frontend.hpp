@@ -19,6 +19,7 @@
 #include "hxmap/feedback/field_surface.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
+#include "hxmap/frontend/loop_closer.hpp"
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/posegraph/params.hpp"
 #include "hxmap/posegraph/pose_graph.hpp"
@@ -173,24 +174,6 @@ struct TrackingCounters {
   size_t database_keyframes = 0, database_bytes = 0;
 };
 
-/// What loop closure did, summed over a run.
-struct LoopClosureCounters {
-  uint64_t queries = 0;        ///< keyframes compared with the old ones
-  uint64_t candidates = 0;     ///< PnP poses from old keyframes
-  uint64_t refused_drift = 0;  ///< candidates farther from the tracked pose than odometry can drift
-  uint64_t refused_icp = 0;    ///< candidates ICP against the map did not confirm
-  uint64_t refused_graph = 0;  ///< confirmed ones the pose graph could not take (chi-square)
-  uint64_t consistent = 0;     ///< confirmed, the graph moved no keyframe beyond min_correction: nothing applied
-  uint64_t odometry_jumps = 0;       ///< tracked motion between keyframes their own alignment disagreed with (replaced)
-  uint64_t odometry_unverified = 0;  ///< keyframe-to-keyframe alignments that failed (tracked motion kept)
-  uint64_t closures = 0;       ///< confirmed and applied: trajectory corrected, map rebuilt
-  uint64_t keyframes_rebuilt = 0;  ///< keyframe observations re-fused, summed over rebuilds
-  uint64_t stale_refinements = 0;  ///< refinement results for a map since rebuilt (dropped)
-  double largest_correction_m = 0, largest_correction_deg = 0;  ///< the most any keyframe moved in a closure
-  double cost_before = 0, cost_after = 0;  ///< pose graph cost, summed over applied closures
-  double detect_ms = 0, solve_ms = 0, rebuild_ms = 0;  ///< totals
-};
-
 /// Process-wide: large buffers come from the heap and heap memory is kept
 /// between frames (glibc mmap and trim thresholds raised). DESIGN: image
 /// buffers (about 1 MiB each, a dozen per frame) were otherwise mapped
@@ -291,10 +274,23 @@ class Frontend {
     return c;
   }
   const alg::KeyframeDatabase& keyframeDatabase() const { return keyframe_db_; }
-  const LoopClosureCounters& loopClosureCounters() const { return loop_counters_; }
-  /// Keyframe observations stored for rebuilds, and their bytes.
-  std::pair<size_t, size_t> loopObservations() const;
-  const alg::PoseGraph& poseGraph() const { return pose_graph_; }
+  /// The loop closer's counters with the frontend's part (odometry
+  /// checks, corrections applied, stale refinements).
+  LoopClosureCounters loopClosureCounters() const;
+  /// Null when loop closure is off, or while detached.
+  const LoopCloser* loopCloser() const { return loop_closer_.get(); }
+  /// Real time: the loop closer moves to a thread of its own; process()
+  /// then queues each keyframe for it (takeLoopKeyframes) instead of
+  /// running it, and its corrections come back through
+  /// applyLoopCorrection. Attached again once that thread has ended.
+  std::unique_ptr<LoopCloser> detachLoopCloser() { return std::move(loop_closer_); }
+  void attachLoopCloser(std::unique_ptr<LoopCloser> closer) { loop_closer_ = std::move(closer); }
+  std::vector<LoopKeyframe> takeLoopKeyframes() { return std::exchange(loop_out_, {}); }
+  /// A loop closure's correction, between frames: every frame moves with
+  /// its keyframe, later frames and the live pose with the newest; the
+  /// correction's map replaces the map (refinement state and the quality
+  /// map start over: they describe the old map's blocks).
+  void applyLoopCorrection(LoopCorrection& correction);
   size_t keyframes() const { return keyframes_; }
 
   /// Quality of the map's regions (paper 3.2), updated on each keyframe.
@@ -331,14 +327,6 @@ class Frontend {
   /// The keyframe's ORB features, added to the database (empty without color).
   alg::FrameFeatures addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
                                            const Eigen::Isometry3d& T_world_cam);
-  /// Loop closure at a new keyframe (last_frame_ at T_world_kf, its
-  /// features): its node and an odometry factor (the keyframe aligned to
-  /// the previous one) join the pose graph; a closure with an old
-  /// keyframe, once verified, corrects the trajectory, the live pose and
-  /// T_world_kf, and rebuilds the map.
-  void closeLoop(uint32_t id, const alg::FrameFeatures& features, const alg::PreprocessedFrame& previous_kf,
-                 const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
-                 Eigen::Isometry3d& T_world_kf);
   /// Odometry from the previous keyframe to this one (last_frame_): the
   /// tracked motion, checked by aligning last_frame_ to the previous
   /// keyframe's own depth and color; where the two disagree beyond
@@ -350,14 +338,12 @@ class Frontend {
   Eigen::Isometry3d keyframeOdometry(const alg::PreprocessedFrame& previous_kf, const Eigen::Isometry3d& T_previous_kf,
                                      const Eigen::Isometry3d& T_previous_kf_color,
                                      const Eigen::Isometry3d& T_world_kf);
-  /// Meters between consecutive keyframes of the graph from `from` to `to`.
-  double pathLength(uint32_t from, uint32_t to) const;
-  /// After the pose graph moved: every frame moves with its keyframe, the
-  /// live state with the newest; then rebuildMap().
-  void applyGraph(Eigen::Isometry3d& T_world_kf);
-  /// The map fused anew from the stored keyframe observations at their
-  /// graph poses.
-  void rebuildMap();
+  /// The keyframe (last_frame_ at T_world_kf) for the loop closer: run
+  /// at once offline (a correction is applied before process() returns),
+  /// queued in real time.
+  void sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const alg::PreprocessedFrame& previous_kf,
+                        const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
+                        const Eigen::Isometry3d& T_world_kf);
   /// Step 2 of process(): the decision, the result that gave the pose (or
   /// the model's failed one) and the pose.
   alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T);
@@ -419,11 +405,13 @@ class Frontend {
   std::vector<alg::WindowKeyframe> feedback_out_;
   std::deque<uint32_t> reintegrate_queue_;
   FeedbackCounters feedback_counters_;
-  // Loop closure: the graph over keyframes, each keyframe's first
-  // trajectory entry, and the observations the map is rebuilt from.
-  alg::PoseGraph pose_graph_;
+  // Loop closure: the closer (detached in real time), each keyframe's
+  // trajectory entry, keyframes queued for the closer's thread, the
+  // corrections applied, and the frontend's own counts.
+  std::unique_ptr<LoopCloser> loop_closer_;
   std::map<uint32_t, size_t> keyframe_index_;
-  std::map<uint32_t, alg::DepthObservation> loop_observations_;
+  std::vector<LoopKeyframe> loop_out_;
+  uint64_t loop_epoch_ = 0;
   LoopClosureCounters loop_counters_;
   uint64_t map_epoch_ = 0;
   mutable std::shared_mutex map_mutex_;

@@ -1,0 +1,167 @@
+// Loop closure (paper: "the explicit backbone ensures compatibility with
+// loop closure"): a pose graph over keyframes, place recognition over its
+// own keyframe database, verification by ICP against a map fused from the
+// keyframes alone, and, for an accepted closure, that map fused anew at
+// the keyframes' new poses.
+//
+// DESIGN: the loop closer owns everything it reads and writes (graph,
+// database, keyframe observations, keyframe map), so it can run on a
+// thread of its own without sharing the frontend's map: the frontend sends
+// it keyframes and takes back corrections, each carrying a map to swap in.
+// Its work is cut into steps of a few milliseconds (matching one
+// keyframe's descriptors, one PnP, one ICP check, the solve, fusing two
+// observations) so the real-time runtime runs one step per slice its
+// scheduler admits; offline, the frontend runs every step at once.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "hxmap/core/parallel.hpp"
+#include "hxmap/geometry/se3.hpp"
+#include "hxmap/posegraph/params.hpp"
+#include "hxmap/posegraph/pose_graph.hpp"
+#include "hxmap/preprocess/preprocess.hpp"
+#include "hxmap/relocalization/keyframe_database.hpp"
+#include "hxmap/tracking/icp.hpp"
+#include "hxmap/tsdf/integrate.hpp"
+#include "hxmap/tsdf/raycast.hpp"
+#include "hxmap/tsdf/tsdf_map.hpp"
+
+namespace hxmap::rt {
+
+/// What loop closure did, summed over a run.
+struct LoopClosureCounters {
+  uint64_t keyframes = 0;      ///< keyframes the graph received
+  uint64_t queries = 0;        ///< keyframes compared with the old ones
+  uint64_t skipped = 0;        ///< not compared: a newer keyframe was already waiting
+  uint64_t shed = 0;           ///< comparisons given up for lack of CPU (real time)
+  uint64_t candidates = 0;     ///< PnP poses from old keyframes
+  uint64_t refused_drift = 0;  ///< candidates farther from the tracked pose than odometry can drift
+  uint64_t refused_icp = 0;    ///< candidates ICP against the keyframe map did not confirm
+  uint64_t refused_graph = 0;  ///< confirmed ones the pose graph could not take (chi-square)
+  uint64_t consistent = 0;     ///< confirmed, the graph moved no keyframe beyond min_correction: nothing applied
+  uint64_t odometry_jumps = 0;       ///< tracked motion between keyframes their own alignment disagreed with (replaced)
+  uint64_t odometry_unverified = 0;  ///< keyframe-to-keyframe alignments that failed (tracked motion kept)
+  uint64_t closures = 0;       ///< confirmed and solved: a correction with a rebuilt map sent
+  uint64_t applied = 0;        ///< corrections the frontend applied (trajectory corrected, map swapped)
+  uint64_t keyframes_rebuilt = 0;  ///< keyframe observations re-fused, summed over rebuilds
+  uint64_t stale_refinements = 0;  ///< refinement results for a map since rebuilt (dropped)
+  double largest_correction_m = 0, largest_correction_deg = 0;  ///< the most any keyframe moved in a closure
+  double cost_before = 0, cost_after = 0;  ///< pose graph cost, summed over closures
+  double detect_ms = 0, solve_ms = 0, rebuild_ms = 0, fuse_ms = 0;  ///< totals (fuse: the keyframe map)
+};
+
+/// A keyframe for the loop closer, from the frontend. Images are shared
+/// with the frontend's frame (never written after it is made).
+struct LoopKeyframe {
+  uint32_t id = 0;
+  uint64_t epoch = 0;  ///< corrections the frontend had applied when it made this keyframe
+  Eigen::Isometry3d T_world_kf = Eigen::Isometry3d::Identity();
+  /// Motion from the previous keyframe (id - 1), when there is one.
+  std::optional<Eigen::Isometry3d> odometry;
+  alg::FrameFeatures features;
+  alg::PreprocessedFrame frame;       ///< for ICP against the keyframe map
+  alg::DepthObservation observation;  ///< what the keyframe map fuses (pose: T_world_kf)
+};
+
+/// An accepted closure, for the frontend to apply between frames.
+struct LoopCorrection {
+  uint64_t epoch = 0;  ///< the frontend's correction count once applied (the first is 1)
+  uint32_t keyframe = 0, matched = 0;   ///< the closing keyframe and the old one it met
+  std::map<uint32_t, Eigen::Isometry3d> nodes;  ///< every keyframe's pose after the solve
+  /// T_after * T_before^-1 of the newest keyframe: what moves the frames
+  /// after it (and the live pose).
+  Eigen::Isometry3d newest = Eigen::Isometry3d::Identity();
+  /// The map fused from the stored keyframe observations at their new
+  /// poses (frames fused since the closing keyframe are not in it).
+  std::shared_ptr<alg::TsdfMap> map;
+};
+
+struct LoopCloserParams {
+  alg::LoopClosureParams loop;
+  alg::RelocalizationParams relocalization;
+  alg::TrackingParams tracking;
+  alg::TsdfParams tsdf;
+  alg::RaycastParams raycast;
+  int rebuild_step_keyframes = 2;  ///< observations fused per rebuild step
+};
+
+class LoopCloser {
+ public:
+  LoopCloser(const LoopCloserParams& params, const alg::PinholeCamera& camera, ParallelFor parallel = serialFor);
+
+  /// Queues a keyframe; step() takes it in once the work before it is done.
+  void add(LoopKeyframe keyframe) { pending_.push_back(std::move(keyframe)); }
+  /// Runs the next step; false when there was nothing to do.
+  bool step();
+  /// Work left (queued keyframes or a step in progress).
+  bool busy() const { return phase_ != Phase::kIdle || !pending_.empty(); }
+  /// A comparison under way is given up (the scheduler shed it); a rebuild
+  /// is never given up (the graph has moved). True when something was shed.
+  bool shed();
+  /// In the middle of a rebuild (its steps must not be shed).
+  bool rebuilding() const { return phase_ == Phase::kRebuild; }
+  /// A query started since the last call (a new background job).
+  bool takeQueryStarted() { return std::exchange(query_started_, false); }
+  std::optional<LoopCorrection> takeCorrection() { return std::exchange(correction_, std::nullopt); }
+
+  const LoopClosureCounters& counters() const { return counters_; }
+  LoopClosureCounters& counters() { return counters_; }
+  const alg::PoseGraph& graph() const { return graph_; }
+  const alg::KeyframeDatabase& database() const { return database_; }
+  /// Keyframe observations stored for rebuilds, and their bytes.
+  std::pair<size_t, size_t> observations() const;
+
+ private:
+  enum class Phase { kIdle, kQuery, kVerify, kSolve, kRebuild };
+  /// The next queued keyframe into the graph and database; its query begins.
+  void begin();
+  /// The keyframe's observation into the keyframe map; the phase ends.
+  void finishKeyframe();
+  void verifyNext();
+  void solve();
+  void rebuildStep();
+  /// Meters between consecutive keyframes of the graph from `from` to `to`.
+  double pathLength(uint32_t from, uint32_t to) const;
+  std::vector<alg::ModelView> render(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam) const;
+
+  LoopCloserParams params_;
+  alg::PinholeCamera camera_;
+  ParallelFor parallel_;
+  alg::PoseGraph graph_;
+  alg::KeyframeDatabase database_;
+  alg::TsdfMap map_;  ///< the stored keyframes fused at their graph poses
+  std::map<uint32_t, alg::DepthObservation> observations_;
+  /// Per correction sent: its `newest` (keyframes made before the frontend
+  /// applied it arrive in the old frame and are moved by it here).
+  std::vector<Eigen::Isometry3d> corrections_;
+  std::deque<LoopKeyframe> pending_;
+  Phase phase_ = Phase::kIdle;
+  LoopKeyframe current_;  ///< the keyframe being compared
+  std::optional<alg::KeyframeQuery> query_;
+  std::vector<alg::RelocalizationCandidate> candidates_;
+  size_t next_candidate_ = 0;
+  struct Confirmed {
+    alg::RelocalizationCandidate candidate;
+    Eigen::Isometry3d T_world_kf;
+    alg::Matrix6d information;  ///< ICP's, world frame, left perturbation
+  };
+  std::optional<Confirmed> confirmed_;
+  std::optional<alg::TsdfMap> rebuilt_;
+  std::vector<uint32_t> rebuild_ids_;
+  size_t rebuild_next_ = 0;
+  LoopCorrection building_;  ///< the correction whose map is being rebuilt
+  std::optional<LoopCorrection> correction_;
+  bool query_started_ = false;
+  LoopClosureCounters counters_;
+};
+
+}  // namespace hxmap::rt
