@@ -207,13 +207,14 @@ std::string loopClosureSummary(const Frontend& frontend) {
   const LoopCloser* closer = frontend.loopCloser();
   const auto [stored, bytes] = closer ? closer->observations() : std::pair<size_t, size_t>{0, 0};
   return fmt::format(
-      "loop closure: {} keyframes, {} compared with older ones ({:.1f} ms each; {} skipped behind newer ones, {} shed), "
+      "loop closure: {} keyframes ({} made before a correction reached the frontend), {} compared with older ones "
+      "({:.1f} ms each; {} skipped behind newer ones, {} shed), "
       "{} candidates: {} beyond the drift bound, {} refused by the ICP check, {} refused by the pose graph, {} already "
       "consistent, {} closed and {} applied (largest correction {:.1f} cm, {:.2f} deg); pose graph {} keyframes, cost "
       "{:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes replaced by their alignment {} times ({} "
       "alignments failed); keyframe map fused in {:.0f} ms, rebuilt {} times from {} keyframe observations in {:.0f} ms "
       "({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
-      l.keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.skipped, l.shed,
+      l.keyframes, l.late_keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.skipped, l.shed,
       l.candidates, l.refused_drift, l.refused_icp, l.refused_graph, l.consistent, l.closures, l.applied,
       100 * l.largest_correction_m, l.largest_correction_deg, closer ? closer->graph().nodes().size() : 0,
       l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps, l.odometry_unverified, l.fuse_ms, l.closures,
@@ -442,6 +443,7 @@ int runCommand(const RunOptions& o) {
     ro.burn_slice_ms = o.burn_ms;
     ro.refine_workers = c.runtime.refine_workers;
     ro.background_nice = c.runtime.background_nice;
+    ro.loop_parallel = makeParallelFor(c.runtime.threads);
     ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
     ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
 #ifdef HXMAP_HAVE_DDS

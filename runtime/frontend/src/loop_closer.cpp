@@ -83,7 +83,12 @@ void LoopCloser::begin() {
   LoopKeyframe& kf = current_;
   // Made before the frontend applied the corrections sent since: in the
   // frame before them.
-  for (uint64_t e = kf.epoch; e < corrections_.size(); ++e) kf.T_world_kf = corrections_[e] * kf.T_world_kf;
+  counters_.late_keyframes += kf.epoch < corrections_.size();
+  for (uint64_t e = kf.epoch; e < corrections_.size(); ++e) {
+    kf.T_world_kf = corrections_[e] * kf.T_world_kf;
+    kf.T_world_previous = corrections_[e] * kf.T_world_previous;
+    kf.T_world_previous_color = corrections_[e] * kf.T_world_previous_color;
+  }
   kf.observation.T_world_cam = kf.T_world_kf.cast<float>();
   ++counters_.keyframes;
 
@@ -91,8 +96,8 @@ void LoopCloser::begin() {
   const uint32_t id = kf.id;
   const bool first = graph_.nodes().empty();
   graph_.setNode(id, kf.T_world_kf);
-  if (!first && id > 0 && kf.odometry && graph_.hasNode(id - 1)) {
-    graph_.addFactor({id - 1, id, *kf.odometry,
+  if (!first && id > 0 && kf.previous && graph_.hasNode(id - 1)) {
+    graph_.addFactor({id - 1, id, odometry(kf),
                       alg::isotropicInformation(lp.odometry_sigma_deg * M_PI / 180.0, lp.odometry_sigma_m), false});
   }
   observations_[id] = kf.observation;
@@ -132,6 +137,33 @@ void LoopCloser::finishKeyframe() {
   current_ = LoopKeyframe{};  // the frame's buffers go back
   candidates_.clear();
   phase_ = Phase::kIdle;
+}
+
+Eigen::Isometry3d LoopCloser::odometry(const LoopKeyframe& kf) {
+  const Eigen::Isometry3d tracked = kf.T_world_previous.inverse() * kf.T_world_kf;
+  const alg::PreprocessedFrame& previous = *kf.previous;
+  if (previous.levels.empty() || kf.frame.levels.empty()) return tracked;
+  const alg::PhotometricReference reference{&previous, kf.T_world_previous_color, kf.T_depth_color};
+  alg::TrackingParams tp = params_.tracking;
+  tp.photometric_scale_m = kf.photometric_scale_m;
+  const alg::IcpResult icp = alg::trackPointToPlane(kf.frame, alg::frameAsModel(previous, kf.T_world_previous),
+                                                    kf.T_world_kf, tp, reference, parallel_);
+  if (!icp.ok) {
+    ++counters_.odometry_unverified;
+    return tracked;
+  }
+  // Tracking against the map is the more precise of the two while they
+  // agree (the map averages many frames); when they do not, the tracked
+  // motion holds a jump the two keyframes' own images do not show.
+  const Eigen::Isometry3d aligned = kf.T_world_previous.inverse() * icp.T_world_cam;
+  const Eigen::Isometry3d d = tracked.inverse() * aligned;
+  const alg::LoopClosureParams& lp = params_.loop;
+  if (!icp.degraded.empty() || (alg::translationNorm(d) <= lp.jump_sigmas * lp.odometry_sigma_m &&
+                                 degrees(alg::rotationAngle(d)) <= lp.jump_sigmas * lp.odometry_sigma_deg)) {
+    return tracked;
+  }
+  ++counters_.odometry_jumps;
+  return aligned;
 }
 
 std::vector<alg::ModelView> LoopCloser::render(const alg::PreprocessedFrame& frame,

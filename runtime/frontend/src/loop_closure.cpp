@@ -16,39 +16,6 @@
 
 namespace hxmap::rt {
 
-namespace {
-double degrees(double rad) { return rad * 180.0 / M_PI; }
-}  // namespace
-
-Eigen::Isometry3d Frontend::keyframeOdometry(const alg::PreprocessedFrame& previous_kf,
-                                             const Eigen::Isometry3d& T_previous_kf,
-                                             const Eigen::Isometry3d& T_previous_kf_color,
-                                             const Eigen::Isometry3d& T_world_kf) {
-  const Eigen::Isometry3d tracked = T_previous_kf.inverse() * T_world_kf;
-  if (previous_kf.levels.empty()) return tracked;
-  const alg::PhotometricReference reference{&previous_kf, T_previous_kf_color, colorOffset(last_frame_)};
-  alg::TrackingParams tp = params_.tracking;
-  tp.photometric_scale_m = photometricScale();
-  const alg::IcpResult icp =
-      alg::trackPointToPlane(last_frame_, alg::frameAsModel(previous_kf, T_previous_kf), T_world_kf, tp, reference, parallel_);
-  if (!icp.ok) {
-    ++loop_counters_.odometry_unverified;
-    return tracked;
-  }
-  // Tracking against the map is the more precise of the two while they
-  // agree (the map averages many frames); when they do not, the tracked
-  // motion holds a jump the two keyframes' own images do not show.
-  const Eigen::Isometry3d aligned = T_previous_kf.inverse() * icp.T_world_cam;
-  const Eigen::Isometry3d d = tracked.inverse() * aligned;
-  const alg::LoopClosureParams& lp = params_.loop_closure;
-  if (!icp.degraded.empty() || (alg::translationNorm(d) <= lp.jump_sigmas * lp.odometry_sigma_m &&
-                                 degrees(alg::rotationAngle(d)) <= lp.jump_sigmas * lp.odometry_sigma_deg)) {
-    return tracked;
-  }
-  ++loop_counters_.odometry_jumps;
-  return aligned;
-}
-
 void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const alg::PreprocessedFrame& previous_kf,
                                 const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
                                 const Eigen::Isometry3d& T_world_kf) {
@@ -57,7 +24,13 @@ void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const 
   kf.id = id;
   kf.epoch = loop_epoch_;
   kf.T_world_kf = T_world_kf;
-  if (id > 0) kf.odometry = keyframeOdometry(previous_kf, T_previous_kf, T_previous_kf_color, T_world_kf);
+  if (id > 0) {
+    kf.previous = previous_kf;  // headers
+    kf.T_world_previous = T_previous_kf;
+    kf.T_world_previous_color = T_previous_kf_color;
+    kf.T_depth_color = colorOffset(last_frame_);
+    kf.photometric_scale_m = photometricScale();
+  }
   kf.features = std::move(features);
   kf.frame = last_frame_;  // headers: the buffers are shared, never written again
   kf.observation = {last_frame_.depth_m, last_frame_.rgb, last_frame_.levels[last_frame_.finest].confidence, camera_,
@@ -136,8 +109,6 @@ void Frontend::applyLoopCorrection(LoopCorrection& c) {
 
 LoopClosureCounters Frontend::loopClosureCounters() const {
   LoopClosureCounters c = loop_closer_ ? loop_closer_->counters() : LoopClosureCounters{};
-  c.odometry_jumps = loop_counters_.odometry_jumps;
-  c.odometry_unverified = loop_counters_.odometry_unverified;
   c.applied = loop_counters_.applied;
   c.stale_refinements = loop_counters_.stale_refinements;
   return c;

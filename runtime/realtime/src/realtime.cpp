@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <deque>
 #include <memory>
 #include <thread>
 
@@ -147,6 +148,19 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       }
     }
   };
+  // Loop closure: the loop closer moves to its own thread; keyframes go
+  // to it (those the ring has no room for wait on the frontend thread:
+  // none may be lost, the graph needs every one), corrections with their
+  // rebuilt maps come back and are applied between frames.
+  std::unique_ptr<LoopCloser> closer = frontend.detachLoopCloser();
+  if (closer) closer->setParallel(options.loop_parallel ? options.loop_parallel : ParallelFor(serialFor));
+  SpscRing<LoopKeyframe> loop_keyframes(32);
+  SpscRing<LoopCorrection> loop_corrections(4);
+  std::deque<LoopKeyframe> loop_backlog;  // frontend thread
+  std::deque<LoopCorrection> loop_unsent;  // loop thread until joined: corrections the ring had no room for
+  std::atomic<uint64_t> loop_pushed{0}, loop_slices{0}, loop_forced{0}, loop_waits{0};
+  uint64_t loop_applied = 0;  // frontend thread
+  double loop_apply_ms = 0;   // frontend thread
   std::atomic<uint64_t> keyframes_pushed{0};
   std::atomic<uint64_t> keyframes_full{0}, keyframes_seen{0}, burn_slices{0}, frames_done{0};
   std::vector<double> latency_ms, frontend_ms;  // frontend thread only until joined
@@ -210,6 +224,14 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       applyOutcomes();
       KeyframeCorrection correction;
       while (corrections.tryPop(correction)) corrections_applied += frontend.applyKeyframeCorrection(correction);
+      LoopCorrection loop;
+      while (loop_corrections.tryPop(loop)) {
+        const int64_t t = now_ns();
+        frontend.applyLoopCorrection(loop);
+        loop_apply_ms += static_cast<double>(now_ns() - t) * 1e-6;
+        ++loop_applied;
+        loop = LoopCorrection{};  // the old map goes here, not in the next frame
+      }
       // DESIGN: a keyframe makes refinement jobs only for idle workers.
       // Made while every worker was busy, a job waited behind others for
       // seconds (a job is about 1 s of CPU, run in the slack of 2-3 frames
@@ -260,6 +282,16 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         if (!keyframes.tryPush(std::move(kf))) keyframes_full.fetch_add(1);
         keyframes_pushed.fetch_add(1, std::memory_order_release);
         keyframes_pushed.notify_one();
+      }
+      for (LoopKeyframe& kf : frontend.takeLoopKeyframes()) loop_backlog.push_back(std::move(kf));
+      bool loop_sent = false;
+      while (!loop_backlog.empty() && loop_keyframes.tryPush(std::move(loop_backlog.front()))) {
+        loop_backlog.pop_front();
+        loop_sent = true;
+      }
+      if (loop_sent) {
+        loop_pushed.fetch_add(1, std::memory_order_release);
+        loop_pushed.notify_one();
       }
       stats.results.push_back(std::move(r));
       frames_done.fetch_add(1, std::memory_order_relaxed);
@@ -355,6 +387,60 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
     feedback_tally = solver.tally();
   });
+
+  // Loop closure (paper: the explicit backbone's loop closure): the loop
+  // closer's steps, each a scheduler-admitted slice. A comparison the
+  // scheduler sheds is given up (the next keyframe brings another); what
+  // may not be given up (a keyframe's place in the graph, a rebuild after
+  // a solve) runs one step when shed, at most once per shed period.
+  std::thread loop_thread;
+  if (closer) {
+    loop_thread = std::thread([&] {
+      nameThisThread("hx-loop");
+      niceThisThread("hx-loop", options.background_nice);
+      JobTicket ticket;
+      bool in_job = false;
+      LoopKeyframe kf;
+      while (!workers_stop.load()) {
+        const uint64_t seen = loop_pushed.load(std::memory_order_acquire);
+        while (loop_keyframes.tryPop(kf)) closer->add(std::move(kf));
+        if (!closer->busy()) {
+          loop_pushed.wait(seen, std::memory_order_acquire);  // no polling
+          continue;
+        }
+        if (!in_job) {
+          ticket = JobTicket{"loop", 5.0};
+          sched.jobSubmitted(ticket, now_ns());
+          in_job = true;
+        }
+        ticket.kind = closer->rebuilding() ? "loop rebuild" : "loop";
+        const uint64_t epoch = sched.frameEpoch();
+        const Verdict v = sched.admitSlice(ticket, now_ns());
+        if (v == Verdict::kWait) {
+          loop_waits.fetch_add(1);
+          sched.waitForFrameEnd(epoch);
+          continue;
+        }
+        if (v == Verdict::kShed) {
+          in_job = false;
+          if (closer->shed()) continue;
+          loop_forced.fetch_add(1);
+        }
+        const int64_t s0 = now_ns();
+        closer->step();
+        const int64_t s1 = now_ns();
+        if (in_job) sched.sliceFinished(ticket, static_cast<double>(s1 - s0) * 1e-6);
+        loop_slices.fetch_add(1);
+        if (trace) trace->add({ticket.kind.c_str(), "background", s0, s1 - s0, 3 + n_workers + 1, -1, -1});
+        if (std::optional<LoopCorrection> c = closer->takeCorrection()) loop_unsent.push_back(std::move(*c));
+        while (!loop_unsent.empty() && loop_corrections.tryPush(std::move(loop_unsent.front()))) loop_unsent.pop_front();
+        if (in_job && !closer->busy()) {
+          sched.jobFinished(ticket);
+          in_job = false;
+        }
+      }
+    });
+  }
 
   // One ROI job on worker w, in scheduler-admitted slices: the field's
   // setup, then slice_iterations iterations at a time, then the write-back.
@@ -501,8 +587,27 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   jobs_pushed.notify_all();
   keyframes_pushed.fetch_add(1, std::memory_order_release);
   keyframes_pushed.notify_all();
+  loop_pushed.fetch_add(1, std::memory_order_release);
+  loop_pushed.notify_all();
   for (auto& w : workers) w.join();
   feedback.join();
+  if (loop_thread.joinable()) loop_thread.join();
+  if (closer) {
+    // What was still queued or under way: finished here (the threads are
+    // joined), so the graph holds every keyframe and a last closure still
+    // corrects the trajectory written.
+    LoopKeyframe kf;
+    while (loop_keyframes.tryPop(kf)) closer->add(std::move(kf));
+    for (LoopKeyframe& k : loop_backlog) closer->add(std::move(k));
+    for (LoopKeyframe& k : frontend.takeLoopKeyframes()) closer->add(std::move(k));
+    LoopCorrection loop;
+    while (loop_corrections.tryPop(loop)) frontend.applyLoopCorrection(loop);
+    for (LoopCorrection& c : loop_unsent) frontend.applyLoopCorrection(c);
+    while (closer->step()) {
+      if (std::optional<LoopCorrection> c = closer->takeCorrection()) frontend.applyLoopCorrection(*c);
+    }
+    frontend.attachLoopCloser(std::move(closer));
+  }
   // Outcomes that arrived after the last frame: applied now (the threads
   // are joined), so no finished refinement is lost.
   applyOutcomes();
@@ -532,7 +637,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   stats.refine_voxels_written = voxels_written;
   const SchedulerCounters& c = stats.counters;
   stats.report = fmt::format(
-      "realtime run at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement\n"
+      "realtime run at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement{}\n"
       "  frames: in {}, processed {}, dropped {}, deadline misses {}\n"
       "  sustained {:.1f} FPS; latency arrival->pose p50 {:.1f} ms, p99 {:.1f} ms; frontend p50 {:.1f} ms, p99 {:.1f} ms\n"
       "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices paused\n"
@@ -541,7 +646,8 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       "  burn load: {} slices ({:.0f} ms of CPU)\n"
       "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} keyframe "
       "corrections\n",
-      sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()), workers.size(), c.frames_in,
+      sp.target_fps, sched.periodNs() * 1e-6, 3 + static_cast<int>(workers.size()) + (frontend.loopCloser() ? 1 : 0),
+      workers.size(), frontend.loopCloser() ? ", loop closure" : "", c.frames_in,
       c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
       stats.frontend_p50_ms, stats.frontend_p99_ms, c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted,
       c.jobs_cancelled, c.slices_paused, refine_submitted + refine_rejected, refine_submitted, refine_rejected,
@@ -561,6 +667,13 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
     stats.report += fmt::format("  feedback windows skipped at effort 0: {}, cut short by the scheduler: {}; "
                                 "corrections lost (ring full): {}\n",
                                 stats.feedback_windows_skipped, stats.feedback_windows_shed, corrections_full.load());
+  }
+  if (frontend.loopCloser()) {
+    stats.report += fmt::format("  loop closure: {} slices ({} run when shed: a keyframe's place in the graph or a "
+                                "rebuild), waited for slack {} times; {} corrections applied between frames ({:.1f} ms "
+                                "each)\n",
+                                loop_slices.load(), loop_forced.load(), loop_waits.load(), loop_applied,
+                                loop_applied ? loop_apply_ms / static_cast<double>(loop_applied) : 0.0);
   }
   if (const std::string st = source.statsText(); !st.empty()) stats.report += "  source: " + st + "\n";
   if (!source_error.empty()) stats.report += "  the source failed: " + source_error + "\n";

@@ -327,17 +327,6 @@ class Frontend {
   /// The keyframe's ORB features, added to the database (empty without color).
   alg::FrameFeatures addToKeyframeDatabase(uint32_t id, const alg::PreprocessedFrame& frame,
                                            const Eigen::Isometry3d& T_world_cam);
-  /// Odometry from the previous keyframe to this one (last_frame_): the
-  /// tracked motion, checked by aligning last_frame_ to the previous
-  /// keyframe's own depth and color; where the two disagree beyond
-  /// loop_closure.odometry_sigma_*, the alignment. DESIGN: tracking against
-  /// the map snaps back onto old surfaces when the camera returns to them;
-  /// that jump in the chain would hide the drift the loop should spread
-  /// out. Always the alignment was worse: on the quality room its errors
-  /// added up to a 3 cm closure that tracking (0.12 cm ATE) did not need.
-  Eigen::Isometry3d keyframeOdometry(const alg::PreprocessedFrame& previous_kf, const Eigen::Isometry3d& T_previous_kf,
-                                     const Eigen::Isometry3d& T_previous_kf_color,
-                                     const Eigen::Isometry3d& T_world_kf);
   /// The keyframe (last_frame_ at T_world_kf) for the loop closer: run
   /// at once offline (a correction is applied before process() returns),
   /// queued in real time.

@@ -120,6 +120,10 @@ struct RealtimeOptions {
   /// misses (the misses then were the cold start, see Frontend::warmUp).
   /// Under other load (other processes at nice 0) niced workers may starve.
   int background_nice = 10;
+  /// How the loop-closure thread runs its data-parallel loops; null =
+  /// serially. Its own pool (not the frontend's): its slices run in
+  /// predicted slack, when the frontend leaves the cores idle.
+  ParallelFor loop_parallel;
   /// Run Frontend::warmUp on the frontend thread before the sensor thread
   /// reads the first frame.
   bool warm_up = true;
