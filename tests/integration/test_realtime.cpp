@@ -62,6 +62,21 @@ TEST_F(RealtimeTest, EveryFrameIsProcessedOrCountedAsDropped) {
   for (size_t i = 1; i < s.results.size(); ++i) EXPECT_GT(s.results[i].stamp_ns, s.results[i - 1].stamp_ns);
 }
 
+TEST_F(RealtimeTest, EveryKeyframeReachesTheLoopClosersThread) {
+  // The loop closer runs on its own thread during the run and comes back
+  // to the frontend after it; its pose graph must hold every keyframe
+  // (a keyframe missing from the chain would break the odometry factors).
+  ASSERT_NE(fe_.loopCloser(), nullptr) << "loop closure is on by default";
+  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
+  ASSERT_NE(fe_.loopCloser(), nullptr) << "attached again after the run";
+  EXPECT_GT(fe_.keyframes(), 1u);
+  EXPECT_EQ(fe_.loopCloser()->graph().nodes().size(), fe_.keyframes()) << s.report;
+  EXPECT_EQ(fe_.loopCloser()->counters().keyframes, fe_.keyframes());
+  EXPECT_EQ(fe_.loopCloser()->graph().factors().size() + 1, fe_.keyframes()) << "one odometry factor per keyframe after the first";
+  EXPECT_TRUE(fe_.takeLoopKeyframes().empty());
+  EXPECT_NE(s.report.find("loop closure:"), std::string::npos) << s.report;
+}
+
 TEST_F(RealtimeTest, FrameLimitEndsTheStreamAfterItsFrames) {
   PlaybackSource all(frames_, 1000.0);
   FrameLimit limited(all, 5);

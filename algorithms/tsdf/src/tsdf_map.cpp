@@ -223,6 +223,11 @@ void TsdfMap::markChanged(const std::vector<int32_t>& block_indices) {
   for (const int32_t b : block_indices) block_revisions_[static_cast<size_t>(b)] = revision_;
 }
 
+void TsdfMap::markAllChanged(uint64_t after) {
+  revision_ = std::max(revision_, after) + 1;
+  std::fill(block_revisions_.begin(), block_revisions_.end(), revision_);
+}
+
 std::vector<int32_t> TsdfMap::changedSince(uint64_t revision) const {
   std::vector<int32_t> out;
   for (size_t b = 0; b < block_revisions_.size(); ++b) {

@@ -120,6 +120,21 @@ TEST(MapRegions, ChangedRegionsFollowWrites) {
   for (size_t i = 1; i < all.size(); ++i) EXPECT_TRUE(keyLess(all[i - 1], all[i]));
 }
 
+TEST(MapRegions, AReplacingMapIsChangedEverywhereAfterTheOldRevision) {
+  // A loop closure replaces the map with one fused anew: a publisher that
+  // followed the old map's revisions must see every block of the new one.
+  TsdfMap old_map = sphereMap();
+  for (int i = 0; i < 5; ++i) old_map.markChanged({0});
+  TsdfMap replacement = sphereMap();
+  ASSERT_LT(replacement.revision(), old_map.revision() + 1);
+  EXPECT_TRUE(changedRegions(replacement, old_map.revision(), 4).empty()) << "the case the mark is for";
+  replacement.markAllChanged(old_map.revision());
+  EXPECT_GT(replacement.revision(), old_map.revision());
+  EXPECT_EQ(changedRegions(replacement, old_map.revision(), 4), changedRegions(replacement, 0, 4));
+  EXPECT_FALSE(changedRegions(replacement, 0, 4).empty());
+  EXPECT_TRUE(changedRegions(replacement, replacement.revision(), 4).empty());
+}
+
 TEST(MapRegions, SplitMeshKeepsEveryTriangleWithinBounds) {
   const TsdfMap map = sphereMap();
   const TriangleMesh full = extractMesh(map, MeshParams{});

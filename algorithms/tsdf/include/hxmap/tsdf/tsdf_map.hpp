@@ -121,6 +121,10 @@ class TsdfMap {
   uint64_t revision() const { return revision_; }
   void markChanged(const std::vector<int32_t>& block_indices);
   std::vector<int32_t> changedSince(uint64_t revision) const;
+  /// Every block written anew, at a revision after `after` (a map that
+  /// replaces another: whoever followed the old one's revisions sees every
+  /// block of this one as changed).
+  void markAllChanged(uint64_t after);
 
   /// Index of the block, or -1 when not allocated. Inline: it is on every
   /// hot path (raycast, trilinear sampling, meshing).
