@@ -212,12 +212,12 @@ std::string loopClosureSummary(const Frontend& frontend) {
       "{} candidates: {} beyond the drift bound, {} refused by the ICP check, {} refused by the pose graph, {} already "
       "consistent, {} closed and {} applied (largest correction {:.1f} cm, {:.2f} deg); pose graph {} keyframes, cost "
       "{:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes replaced by their alignment {} times ({} "
-      "alignments failed); keyframe map fused in {:.0f} ms, rebuilt {} times from {} keyframe observations in {:.0f} ms "
+      "alignments failed, {} taken unchecked); keyframe map fused in {:.0f} ms, rebuilt {} times from {} keyframe observations in {:.0f} ms "
       "({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
       l.keyframes, l.late_keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.skipped, l.shed,
       l.candidates, l.refused_drift, l.refused_icp, l.refused_graph, l.consistent, l.closures, l.applied,
       100 * l.largest_correction_m, l.largest_correction_deg, closer ? closer->graph().nodes().size() : 0,
-      l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps, l.odometry_unverified, l.fuse_ms, l.closures,
+      l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps, l.odometry_unverified, l.odometry_unchecked, l.fuse_ms, l.closures,
       l.keyframes_rebuilt, l.rebuild_ms, stored, static_cast<double>(bytes) / (1 << 20), l.stale_refinements);
 }
 

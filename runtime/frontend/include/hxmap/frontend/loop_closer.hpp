@@ -43,7 +43,7 @@ struct LoopClosureCounters {
   uint64_t queries = 0;        ///< keyframes compared with the old ones
   uint64_t skipped = 0;        ///< not compared: a newer keyframe was already waiting
   uint64_t late_keyframes = 0;  ///< made before the frontend applied a correction sent earlier (moved by it here)
-  uint64_t shed = 0;           ///< comparisons given up for lack of CPU (real time)
+  uint64_t shed = 0;           ///< comparisons given up, or keyframes taken in unchecked, for lack of CPU (real time)
   uint64_t candidates = 0;     ///< PnP poses from old keyframes
   uint64_t refused_drift = 0;  ///< candidates farther from the tracked pose than odometry can drift
   uint64_t refused_icp = 0;    ///< candidates ICP against the keyframe map did not confirm
@@ -51,6 +51,7 @@ struct LoopClosureCounters {
   uint64_t consistent = 0;     ///< confirmed, the graph moved no keyframe beyond min_correction: nothing applied
   uint64_t odometry_jumps = 0;       ///< tracked motion between keyframes their own alignment disagreed with (replaced)
   uint64_t odometry_unverified = 0;  ///< keyframe-to-keyframe alignments that failed (tracked motion kept)
+  uint64_t odometry_unchecked = 0;   ///< tracked motion taken unchecked (the closer was behind)
   uint64_t closures = 0;       ///< confirmed and solved: a correction with a rebuilt map sent
   uint64_t applied = 0;        ///< corrections the frontend applied (trajectory corrected, map swapped)
   uint64_t keyframes_rebuilt = 0;  ///< keyframe observations re-fused, summed over rebuilds
@@ -101,6 +102,7 @@ struct LoopCloserParams {
   alg::TsdfParams tsdf;
   alg::RaycastParams raycast;
   int rebuild_step_keyframes = 2;  ///< observations fused per rebuild step
+  size_t max_pending = 16;         ///< queued keyframes beyond which shed() takes the oldest in unchecked
 };
 
 class LoopCloser {
@@ -115,8 +117,11 @@ class LoopCloser {
   bool step();
   /// Work left (queued keyframes or a step in progress).
   bool busy() const { return phase_ != Phase::kIdle || !pending_.empty(); }
-  /// A comparison under way is given up (the scheduler shed it); a rebuild
-  /// is never given up (the graph has moved). True when something was shed.
+  /// The scheduler shed the work: a comparison under way is given up, or,
+  /// past max_pending queued keyframes, the oldest take their places in
+  /// the graph at once (tracked motion unchecked, not compared, not fused
+  /// into the keyframe map). False when nothing could be given up (a
+  /// rebuild, once the graph has moved, never is).
   bool shed();
   /// In the middle of a rebuild (its steps must not be shed).
   bool rebuilding() const { return phase_ == Phase::kRebuild; }
@@ -133,10 +138,14 @@ class LoopCloser {
 
  private:
   enum class Phase { kIdle, kQuery, kVerify, kSolve, kRebuild };
-  /// The next queued keyframe into the graph and database; its query begins.
-  void begin();
-  /// The keyframe's observation into the keyframe map; the phase ends.
-  void finishKeyframe();
+  /// The next queued keyframe into the graph and database; its query
+  /// begins unless it is behind (another waits) or `shed`.
+  void begin(bool shed = false);
+  /// The keyframe's observation into the keyframe map (unless !fuse); the
+  /// phase ends.
+  void finishKeyframe(bool fuse = true);
+  /// Tracking's motion between the keyframes, as it is (counted).
+  Eigen::Isometry3d uncheckedOdometry(const LoopKeyframe& kf);
   /// Odometry from the previous keyframe to this one: the tracked motion,
   /// checked by aligning the keyframe to the previous one's own depth and
   /// color; where the two disagree beyond loop.odometry_sigma_* (times
