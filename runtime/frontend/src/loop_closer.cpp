@@ -133,7 +133,7 @@ void LoopCloser::begin(bool shed) {
   database_.add(id, kf.features, kf.T_world_kf);
 
   if (kf.features.descriptors.rows == 0 || id < static_cast<uint32_t>(std::max(1, lp.min_keyframe_gap))) {
-    finishKeyframe();
+    finishKeyframe(!shed);
     return;
   }
   if (behind) {
