@@ -144,7 +144,6 @@ void LoopCloser::begin(bool shed) {
   ++counters_.queries;
   query_.emplace(database_, current_.features, camera_, kf.T_world_kf, counters_.queries - 1,
                  id - static_cast<uint32_t>(lp.min_keyframe_gap));
-  query_started_ = true;
   confirmed_.reset();
   phase_ = Phase::kQuery;
 }

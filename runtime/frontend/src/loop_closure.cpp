@@ -3,14 +3,11 @@
 // a correction that moves every frame with its keyframe and brings the
 // map fused anew from the keyframes at their new poses.
 #include <algorithm>
-#include <chrono>
-#include <cmath>
 #include <mutex>
 #include <utility>
 
 #include <spdlog/spdlog.h>
 
-#include "hxmap/feedback/residuals.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/geometry/se3.hpp"
 

@@ -125,12 +125,9 @@ class LoopCloser {
   bool shed();
   /// In the middle of a rebuild (its steps must not be shed).
   bool rebuilding() const { return phase_ == Phase::kRebuild; }
-  /// A query started since the last call (a new background job).
-  bool takeQueryStarted() { return std::exchange(query_started_, false); }
   std::optional<LoopCorrection> takeCorrection() { return std::exchange(correction_, std::nullopt); }
 
   const LoopClosureCounters& counters() const { return counters_; }
-  LoopClosureCounters& counters() { return counters_; }
   const alg::PoseGraph& graph() const { return graph_; }
   const alg::KeyframeDatabase& database() const { return database_; }
   /// Keyframe observations stored for rebuilds, and their bytes.
@@ -189,7 +186,6 @@ class LoopCloser {
   size_t rebuild_next_ = 0;
   LoopCorrection building_;  ///< the correction whose map is being rebuilt
   std::optional<LoopCorrection> correction_;
-  bool query_started_ = false;
   LoopClosureCounters counters_;
 };
 
