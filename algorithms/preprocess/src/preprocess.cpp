@@ -143,16 +143,22 @@ cv::Mat confidenceMap(const cv::Mat& depth, const cv::Mat& vertex, const cv::Mat
 // (I, dI/du, dI/dv) interleaved: the 3x3 Sobel operator scaled by 1/8 (units
 // of intensity per pixel), 0 on the one-pixel border.
 cv::Mat intensityWithGradient(const cv::Mat& intensity, const ParallelFor& parallel) {
-  cv::Mat out(intensity.size(), CV_32FC3, cv::Scalar(0, 0, 0));
+  cv::Mat out(intensity.size(), CV_32FC3);  // every pixel written below
+  const int last = intensity.cols - 1;
   parallel(static_cast<size_t>(intensity.rows), [&](size_t v0, size_t v1) {
     for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
       const float* r1 = intensity.ptr<float>(v);
       auto* o = out.ptr<cv::Vec3f>(v);
-      for (int u = 0; u < intensity.cols; ++u) o[u][0] = r1[u];
-      if (v == 0 || v + 1 == intensity.rows) continue;
+      if (v == 0 || v + 1 == intensity.rows) {
+        for (int u = 0; u <= last; ++u) o[u] = cv::Vec3f(r1[u], 0.0f, 0.0f);
+        continue;
+      }
+      o[0] = cv::Vec3f(r1[0], 0.0f, 0.0f);
+      o[last] = cv::Vec3f(r1[last], 0.0f, 0.0f);
       const float* r0 = intensity.ptr<float>(v - 1);
       const float* r2 = intensity.ptr<float>(v + 1);
-      for (int u = 1; u + 1 < intensity.cols; ++u) {
+      for (int u = 1; u < last; ++u) {
+        o[u][0] = r1[u];
         o[u][1] = 0.125f * ((r0[u + 1] - r0[u - 1]) + 2.0f * (r1[u + 1] - r1[u - 1]) + (r2[u + 1] - r2[u - 1]));
         o[u][2] = 0.125f * ((r2[u - 1] - r0[u - 1]) + 2.0f * (r2[u] - r0[u]) + (r2[u + 1] - r0[u + 1]));
       }
@@ -263,24 +269,27 @@ PreprocessedFrame preprocessFrame(const RgbdFrame& frame, const PinholeCamera& c
   const cv::Size size(camera.width, camera.height);
   const bool depth_ok = frame.depth.type() == CV_32FC1 && frame.depth.size() == size;
   const bool rgb_ok = frame.rgb.type() == CV_8UC3 && frame.rgb.size() == size;
-  out.depth_m = cv::Mat(size, CV_32F, cv::Scalar(0));
+  out.depth_m = cv::Mat(size, CV_32F);  // every pixel written below
   out.rgb = rgb_ok ? frame.rgb : cv::Mat(size, CV_8UC3, cv::Scalar(0, 0, 0));
   out.has_color = rgb_ok;
   if (depth_ok) {
     const float lo = static_cast<float>(params.min_depth_m), hi = static_cast<float>(params.max_depth_m);
+    int valid_pixels = 0, rejected_pixels = 0;
     for (int v = 0; v < size.height; ++v) {
       const float* in = frame.depth.ptr<float>(v);
       float* o = out.depth_m.ptr<float>(v);
       for (int u = 0; u < size.width; ++u) {
         const float z = in[u];
-        if (std::isfinite(z) && z >= lo && z <= hi) {
-          o[u] = z;
-          ++out.valid_pixels;
-        } else if (z != 0.0f) {
-          ++out.rejected_pixels;
-        }
+        const bool valid = std::isfinite(z) && z >= lo && z <= hi;
+        o[u] = valid ? z : 0.0f;
+        valid_pixels += valid;
+        rejected_pixels += !valid && z != 0.0f;
       }
     }
+    out.valid_pixels = valid_pixels;
+    out.rejected_pixels = rejected_pixels;
+  } else {
+    out.depth_m.setTo(0.0f);
   }
   cv::Mat gray;
   cv::cvtColor(out.rgb, gray, cv::COLOR_RGB2GRAY);

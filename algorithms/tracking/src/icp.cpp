@@ -8,29 +8,44 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
+#include "hxmap/core/simd.hpp"
+
 namespace hxmap::alg {
 
 namespace {
 
-// J^T W J and J^T W r of 6-dof residuals. DESIGN: rows are buffered
-// (structure of arrays, kBatch at a time) and reduced product by product
-// across 8 independent float lanes, a loop the compiler vectorizes at the
-// baseline instruction set without reassociating any sum; each batch is
-// added into double. Adding each row into 27 scalar float sums cost about
-// twice as much per residual (it was a quarter of tracking).
+// J^T W J and J^T W r of 6-dof residuals. DESIGN: rows come as columns
+// (structure of arrays, a batch of points at a time) and are reduced
+// product by product across 8 independent float lanes, kBatch rows at a
+// time, a loop the compiler vectorizes at the baseline instruction set
+// without reassociating any sum; each kBatch is added into double. Adding
+// each row into 27 scalar float sums cost about twice as much per residual
+// (it was a quarter of tracking).
 class NormalEquations {
  public:
-  void add(const float J[6], float w, float r) {
-    for (int i = 0; i < 6; ++i) j_[i][n_] = J[i];
-    w_[n_] = w;
-    r_[n_] = r;
-    if (++n_ == kBatch) reduce();
+  /// Adds rows [0, n) given as columns (J_i, w, r), each with room for n
+  /// rounded up to a multiple of 8: that padding is overwritten with
+  /// zero-weight rows.
+  void addColumns(float* const J[6], float* w, float* r, int n) {
+    const int padded = (n + kLanes - 1) / kLanes * kLanes;
+    for (int s = n; s < padded; ++s) {
+      for (int i = 0; i < 6; ++i) J[i][s] = 0.0f;
+      w[s] = r[s] = 0.0f;
+    }
+    alignas(32) float wj[6][kBatch];
+    for (int s0 = 0; s0 < padded; s0 += kBatch) {
+      const int m = std::min(kBatch, padded - s0);
+      for (int i = 0; i < 6; ++i) {
+        for (int s = 0; s < m; ++s) wj[i][s] = w[s0 + s] * J[i][s0 + s];
+      }
+      int k = 0;
+      for (int i = 0; i < 6; ++i) {
+        for (int j = i; j < 6; ++j) H_[k++] += dot(wj[i], J[j] + s0, m);
+        b_[i] += dot(wj[i], r + s0, m);
+      }
+    }
   }
-  /// Adds the buffered rows into the double sums.
-  void flush() {
-    if (n_ > 0) reduce();
-  }
-  /// Both triangles; call after the last flush.
+  /// Both triangles.
   Matrix6d H() const {
     Matrix6d H;
     int k = 0;
@@ -40,7 +55,7 @@ class NormalEquations {
     return H;
   }
   Vector6d b() const { return Vector6d(b_); }
-  void merge(const NormalEquations& o) {  // flushed sums only
+  void merge(const NormalEquations& o) {
     for (int k = 0; k < 21; ++k) H_[k] += o.H_[k];
     for (int i = 0; i < 6; ++i) b_[i] += o.b_[i];
   }
@@ -58,28 +73,6 @@ class NormalEquations {
     return sum;
   }
 
-  void reduce() {
-    const int n = (n_ + kLanes - 1) / kLanes * kLanes;
-    for (int s = n_; s < n; ++s) {  // pad with zero-weight rows
-      for (auto& col : j_) col[s] = 0.0f;
-      w_[s] = r_[s] = 0.0f;
-    }
-    alignas(32) float wj[6][kBatch];
-    for (int i = 0; i < 6; ++i) {
-      for (int s = 0; s < n; ++s) wj[i][s] = w_[s] * j_[i][s];
-    }
-    int k = 0;
-    for (int i = 0; i < 6; ++i) {
-      for (int j = i; j < 6; ++j) H_[k++] += dot(wj[i], j_[j], n);
-      b_[i] += dot(wj[i], r_, n);
-    }
-    n_ = 0;
-  }
-
-  alignas(32) float j_[6][kBatch] = {};
-  alignas(32) float w_[kBatch] = {};
-  alignas(32) float r_[kBatch] = {};
-  int n_ = 0;
   double H_[21] = {}, b_[6] = {};
 };
 
@@ -131,24 +124,50 @@ void accumulateBands(const ParallelFor& parallel, Accumulation& acc, const Body&
 // "37 %" (algorithms/ has no fmt: it builds with OpenCV and Eigen alone).
 std::string percent(double share) { return std::to_string(std::lround(100 * share)) + " %"; }
 
-// Nearest pixel of x in [-0.5, size - 0.5), or -1: floor(x + 0.5) by
-// truncation, no libm call.
-inline int nearestPixel(float x, int size) {
-  const float y = x + 0.5f;
-  return y >= 0.0f && y < static_cast<float>(size) ? static_cast<int>(y) : -1;
-}
+// Points are processed kPointBatch at a time in three passes: the
+// arithmetic that every point needs (transform, projection) across the
+// batch, then the image reads and tests point by point (gathers, which do
+// not vectorize), packing the survivors, then their Jacobians across the
+// packed batch. DESIGN: one pass per point, with the arithmetic between
+// the reads, kept every lane but one idle; split, the two arithmetic passes
+// vectorize at the baseline instruction set (and twice as wide where the
+// CPU has AVX2).
+constexpr int kPointBatch = 128;
 
-// A frame pixel of the point-to-plane term: camera-frame point, normal and
-// confidence.
-struct FramePoint {
-  float p[3], n[3];
-  float conf;
+// A 3x4 rigid transform as plain floats: R row-major, then t.
+struct RigidF {
+  float r[9], t[3];
+  explicit RigidF(const Eigen::Isometry3f& T) {
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) r[3 * i + j] = T.linear()(i, j);
+      t[i] = T.translation()(i);
+    }
+  }
+};
+
+// The frame pixels of the point-to-plane term, one array per coordinate:
+// camera-frame point, normal and confidence.
+struct FramePoints {
+  std::vector<float> px, py, pz, nx, ny, nz, conf;
+  int size() const { return static_cast<int>(px.size()); }
+  void clear() {
+    for (auto* c : {&px, &py, &pz, &nx, &ny, &nz, &conf}) c->clear();
+  }
+  void push(const cv::Vec3f& p, const cv::Vec3f& n, float c) {
+    px.push_back(p[0]);
+    py.push_back(p[1]);
+    pz.push_back(p[2]);
+    nx.push_back(n[0]);
+    ny.push_back(n[1]);
+    nz.push_back(n[2]);
+    conf.push_back(c);
+  }
 };
 
 // The pixels of rows [v_begin, v_end) at `stride` with depth, a normal and
 // confidence, gathered once per level and frame (as the photometric
 // reference points are).
-void gatherFrame(const FrameLevel& level, int stride, int v_begin, int v_end, std::vector<FramePoint>& out) {
+void gatherFrame(const FrameLevel& level, int stride, int v_begin, int v_end, FramePoints& out) {
   out.clear();
   for (int v = v_begin; v < v_end; v += stride) {
     const auto* vrow = level.vertex.ptr<cv::Vec3f>(v);
@@ -159,12 +178,12 @@ void gatherFrame(const FrameLevel& level, int stride, int v_begin, int v_end, st
       if (pc[2] <= 0 || crow[u] <= 0) continue;
       const cv::Vec3f& nc = nrow[u];
       if (nc[0] == 0 && nc[1] == 0 && nc[2] == 0) continue;
-      out.push_back({{pc[0], pc[1], pc[2]}, {nc[0], nc[1], nc[2]}, crow[u]});
+      out.push(pc, nc, crow[u]);
     }
   }
 }
 
-using FrameBands = std::array<std::vector<FramePoint>, kChunks>;
+using FrameBands = std::array<FramePoints, kChunks>;
 
 FrameBands gatherFrameBands(const FrameLevel& level, int stride, const ParallelFor& parallel) {
   FrameBands out;
@@ -173,51 +192,115 @@ FrameBands gatherFrameBands(const FrameLevel& level, int stride, const ParallelF
   return out;
 }
 
-void accumulate(const std::vector<FramePoint>& points, const ModelView& model, const Eigen::Isometry3f& T,
+// Pass 1 of the point-to-plane term: points [0, m) in the world (x),
+// their normals rotated into it (n) and the model pixel each projects to
+// (u, v: truncated, the nearest; ok where inside the image and in front).
+struct GeometricProjection {
+  alignas(32) float x[3][kPointBatch], n[3][kPointBatch], u[kPointBatch], v[kPointBatch];
+  alignas(32) int ok[kPointBatch];
+};
+
+HXMAP_SIMD_CLONES void projectFramePoints(const float* px, const float* py, const float* pz, const float* nx,
+                                          const float* ny, const float* nz, int m, const RigidF& T,
+                                          const RigidF& T_ref, const float k[4], int mw, int mh,
+                                          GeometricProjection& out) {
+  const float wf = static_cast<float>(mw), hf = static_cast<float>(mh);
+  for (int i = 0; i < m; ++i) {
+    const float a = px[i], b = py[i], c = pz[i];
+    const float rx = T_ref.r[0] * a + T_ref.r[1] * b + T_ref.r[2] * c + T_ref.t[0];
+    const float ry = T_ref.r[3] * a + T_ref.r[4] * b + T_ref.r[5] * c + T_ref.t[1];
+    const float rz = T_ref.r[6] * a + T_ref.r[7] * b + T_ref.r[8] * c + T_ref.t[2];
+    const float inv_z = rz > 0.0f ? 1.0f / rz : 0.0f;
+    const float fu = k[0] * rx * inv_z + k[2] + 0.5f, fv = k[1] * ry * inv_z + k[3] + 0.5f;
+    out.u[i] = fu;
+    out.v[i] = fv;
+    out.ok[i] = rz > 0.0f && fu >= 0.0f && fu < wf && fv >= 0.0f && fv < hf;
+    out.x[0][i] = T.r[0] * a + T.r[1] * b + T.r[2] * c + T.t[0];
+    out.x[1][i] = T.r[3] * a + T.r[4] * b + T.r[5] * c + T.t[1];
+    out.x[2][i] = T.r[6] * a + T.r[7] * b + T.r[8] * c + T.t[2];
+    out.n[0][i] = T.r[0] * nx[i] + T.r[1] * ny[i] + T.r[2] * nz[i];
+    out.n[1][i] = T.r[3] * nx[i] + T.r[4] * ny[i] + T.r[5] * nz[i];
+    out.n[2][i] = T.r[6] * nx[i] + T.r[7] * ny[i] + T.r[8] * nz[i];
+  }
+}
+
+// Pass 2 packs the associations (world point x, model point q and normal
+// n, weight so far, depth); pass 3 turns them into rows.
+struct GeometricRows {
+  alignas(32) float x[3][kPointBatch], q[3][kPointBatch], n[3][kPointBatch];
+  alignas(32) float w[kPointBatch], z[kPointBatch];
+  alignas(32) float J[6][kPointBatch], r[kPointBatch];
+};
+
+HXMAP_SIMD_CLONES void geometricRows(int k, float huber, GeometricRows& g) {
+  for (int i = 0; i < k; ++i) {
+    const float dx = g.x[0][i] - g.q[0][i], dy = g.x[1][i] - g.q[1][i], dz = g.x[2][i] - g.q[2][i];
+    const float nx = g.n[0][i], ny = g.n[1][i], nz = g.n[2][i];
+    const float r = nx * dx + ny * dy + nz * dz;
+    const float ar = std::abs(r);
+    g.w[i] *= ar <= huber ? 1.0f : huber / ar;
+    g.r[i] = r;
+    // d r / d xi = (x x n, n) for a left perturbation of T.
+    g.J[0][i] = g.x[1][i] * nz - g.x[2][i] * ny;
+    g.J[1][i] = g.x[2][i] * nx - g.x[0][i] * nz;
+    g.J[2][i] = g.x[0][i] * ny - g.x[1][i] * nx;
+    g.J[3][i] = nx;
+    g.J[4][i] = ny;
+    g.J[5][i] = nz;
+  }
+}
+
+void accumulate(const FramePoints& points, const ModelView& model, const Eigen::Isometry3f& T,
                 const TrackingParams& params, Accumulation& acc) {
-  const Eigen::Isometry3f T_ref_world = model.T_world_cam.inverse();
-  const Eigen::Isometry3f T_ref_cam = T_ref_world * T;
-  const float max_d = static_cast<float>(params.max_correspondence_distance_m);
+  const RigidF Tw(T), T_ref(model.T_world_cam.inverse() * T);
+  const float max_d2 = static_cast<float>(params.max_correspondence_distance_m * params.max_correspondence_distance_m);
   const float cos_max = static_cast<float>(std::cos(params.max_normal_angle_deg * M_PI / 180.0));
   const float huber = static_cast<float>(params.huber_delta_m);
   const PinholeCamera& mc = model.camera;
-  const float fx = static_cast<float>(mc.fx), fy = static_cast<float>(mc.fy);
-  const float cx = static_cast<float>(mc.cx), cy = static_cast<float>(mc.cy);
-  const int mw = mc.width, mh = mc.height;
-  const Eigen::Matrix3f R = T.linear();
+  const float k[4] = {static_cast<float>(mc.fx), static_cast<float>(mc.fy), static_cast<float>(mc.cx),
+                      static_cast<float>(mc.cy)};
   const float sig_a = static_cast<float>(params.noise_sigma_a_m), sig_b = static_cast<float>(params.noise_sigma_b_per_m);
   const float k_sig = static_cast<float>(params.consistent_sigmas);
-  for (const FramePoint& fp : points) {
-    const Eigen::Vector3f p_cam(fp.p[0], fp.p[1], fp.p[2]);
-    const Eigen::Vector3f p_ref = T_ref_cam * p_cam;
-    if (p_ref.z() <= 0) continue;
-    const float inv_z = 1.0f / p_ref.z();
-    const int mu = nearestPixel(fx * p_ref.x() * inv_z + cx, mw);
-    const int mv = nearestPixel(fy * p_ref.y() * inv_z + cy, mh);
-    if (mu < 0 || mv < 0) continue;
-    const cv::Vec3f& qn = model.normal_world.ptr<cv::Vec3f>(mv)[mu];
-    if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
-    const cv::Vec3f& qv = model.vertex_world.ptr<cv::Vec3f>(mv)[mu];
-    const Eigen::Vector3f q(qv[0], qv[1], qv[2]), n(qn[0], qn[1], qn[2]);
-    const Eigen::Vector3f x = T * p_cam;
-    if ((x - q).squaredNorm() > max_d * max_d) continue;
-    const Eigen::Vector3f n_obs = R * Eigen::Vector3f(fp.n[0], fp.n[1], fp.n[2]);
-    const float cos_n = n_obs.dot(n);
-    if (cos_n < cos_max) continue;
-    const float r = n.dot(x - q);
-    const float ar = std::abs(r);
-    const float w_robust = ar <= huber ? 1.0f : huber / ar;
-    // w(p): observation confidence and normal consistency.
-    const Eigen::Vector3f xn = x.cross(n);
-    const float J[6] = {xn.x(), xn.y(), xn.z(), n.x(), n.y(), n.z()};
-    acc.eq.add(J, fp.conf * cos_n * w_robust, r);
-    acc.sq_sum += static_cast<double>(r) * r;
-    acc.abs_sum += std::min(ar, 3.0f * huber);
-    ++acc.inliers;
-    const float dz = fp.p[2] - 0.4f;
-    acc.consistent += ar <= k_sig * (sig_a + sig_b * dz * dz);
+  const auto* normals = model.normal_world.ptr<cv::Vec3f>(0);  // continuous (created whole)
+  const auto* vertices = model.vertex_world.ptr<cv::Vec3f>(0);
+  GeometricProjection proj;
+  GeometricRows rows;
+  for (int b = 0; b < points.size(); b += kPointBatch) {
+    const int m = std::min(kPointBatch, points.size() - b);
+    projectFramePoints(points.px.data() + b, points.py.data() + b, points.pz.data() + b, points.nx.data() + b,
+                       points.ny.data() + b, points.nz.data() + b, m, Tw, T_ref, k, mc.width, mc.height, proj);
+    int n = 0;
+    for (int i = 0; i < m; ++i) {
+      if (!proj.ok[i]) continue;
+      const int pixel = static_cast<int>(proj.v[i]) * mc.width + static_cast<int>(proj.u[i]);
+      const cv::Vec3f& qn = normals[pixel];
+      if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
+      const cv::Vec3f& qv = vertices[pixel];
+      const float dx = proj.x[0][i] - qv[0], dy = proj.x[1][i] - qv[1], dz = proj.x[2][i] - qv[2];
+      if (dx * dx + dy * dy + dz * dz > max_d2) continue;
+      const float cos_n = proj.n[0][i] * qn[0] + proj.n[1][i] * qn[1] + proj.n[2][i] * qn[2];
+      if (cos_n < cos_max) continue;
+      for (int j = 0; j < 3; ++j) {
+        rows.x[j][n] = proj.x[j][i];
+        rows.q[j][n] = qv[j];
+        rows.n[j][n] = qn[j];
+      }
+      rows.w[n] = points.conf[b + i] * cos_n;  // w(p): confidence and normal consistency
+      rows.z[n] = points.pz[b + i];
+      ++n;
+    }
+    geometricRows(n, huber, rows);
+    for (int i = 0; i < n; ++i) {
+      const float r = rows.r[i], ar = std::abs(r);
+      acc.sq_sum += static_cast<double>(r) * r;
+      acc.abs_sum += std::min(ar, 3.0f * huber);
+      const float dz = rows.z[i] - 0.4f;
+      acc.consistent += ar <= k_sig * (sig_a + sig_b * dz * dz);
+    }
+    float* const J[6] = {rows.J[0], rows.J[1], rows.J[2], rows.J[3], rows.J[4], rows.J[5]};
+    acc.eq.addColumns(J, rows.w, rows.r, n);
+    acc.inliers += n;
   }
-  acc.eq.flush();
 }
 
 // Bilinear (I, dI/du, dI/dv) from an interleaved CV_32FC3 image; u, v >= 0
@@ -232,25 +315,28 @@ inline Eigen::Vector3f bilinear3(const cv::Mat& img, float u, float v) {
           w00 * r0[2] + w01 * r0[5] + w10 * r1[2] + w11 * r1[5]};
 }
 
-// A reference pixel of the photometric term: its point in the world and
-// its intensity and confidence.
-struct RefPoint {
-  float y[3];
-  float intensity, conf;
+// The reference pixels of the photometric term, one array per coordinate:
+// point in the world, intensity and confidence.
+struct RefPoints {
+  std::vector<float> x, y, z, intensity, conf;
+  int size() const { return static_cast<int>(x.size()); }
+  void clear() {
+    for (auto* c : {&x, &y, &z, &intensity, &conf}) c->clear();
+  }
 };
 
 // The reference pixels of rows [v_begin, v_end) at `stride`, with depth,
 // confidence (from `ref_conf`, which may be `conf_shift` levels coarser)
 // and an intensity gradient of their own not far below the one the warped
 // pixel must have. DESIGN: gathered once per level and frame rather than in
-// every Gauss-Newton iteration, so that an iteration reads one packed array
+// every Gauss-Newton iteration, so that an iteration reads packed arrays
 // and transforms each point once. Half of the points that reach the
 // gradient test in the current image fail it; the ones whose own gradient
 // is well below the threshold (photometric_reference_gradient_ratio) are
 // left out here.
 void gatherReference(const FrameLevel& ref, const cv::Mat& ref_conf, int conf_shift,
                      const Eigen::Isometry3f& T_world_ref, const TrackingParams& params, int stride, int v_begin,
-                     int v_end, std::vector<RefPoint>& out) {
+                     int v_end, RefPoints& out) {
   out.clear();
   const float rfx = static_cast<float>(1.0 / ref.camera.fx), rfy = static_cast<float>(1.0 / ref.camera.fy);
   const float rcx = static_cast<float>(ref.camera.cx), rcy = static_cast<float>(ref.camera.cy);
@@ -272,50 +358,123 @@ void gatherReference(const FrameLevel& ref, const cv::Mat& ref_conf, int conf_sh
       if (gr[1] * gr[1] + gr[2] * gr[2] < gmin2_ref) continue;
       const Eigen::Vector3f p_ref((static_cast<float>(u) - rcx) * rfx * z, (static_cast<float>(v) - rcy) * rfy * z, z);
       const Eigen::Vector3f y = T_world_ref * p_ref;
-      out.push_back({{y.x(), y.y(), y.z()}, irow[u], conf});
+      out.x.push_back(y.x());
+      out.y.push_back(y.y());
+      out.z.push_back(y.z());
+      out.intensity.push_back(irow[u]);
+      out.conf.push_back(conf);
     }
+  }
+}
+
+// Pass 1 of the photometric term: reference points [0, m) in the current
+// camera (p), 1/z, and their pixel position (u, v) where it is inside the
+// image (with a pixel to spare for interpolation) and in front (ok).
+struct PhotometricProjection {
+  alignas(32) float p[3][kPointBatch], inv_z[kPointBatch], u[kPointBatch], v[kPointBatch];
+  alignas(32) int ok[kPointBatch];
+};
+
+HXMAP_SIMD_CLONES void projectRefPoints(const float* x, const float* y, const float* z, int m, const RigidF& T,
+                                        const float k[4], float W, float H, PhotometricProjection& out) {
+  for (int i = 0; i < m; ++i) {
+    const float a = x[i], b = y[i], c = z[i];
+    const float px = T.r[0] * a + T.r[1] * b + T.r[2] * c + T.t[0];
+    const float py = T.r[3] * a + T.r[4] * b + T.r[5] * c + T.t[1];
+    const float pz = T.r[6] * a + T.r[7] * b + T.r[8] * c + T.t[2];
+    const float inv_z = pz > 0.05f ? 1.0f / pz : 0.0f;
+    const float uu = k[0] * px * inv_z + k[2], vv = k[1] * py * inv_z + k[3];
+    out.p[0][i] = px;
+    out.p[1][i] = py;
+    out.p[2][i] = pz;
+    out.inv_z[i] = inv_z;
+    out.u[i] = uu;
+    out.v[i] = vv;
+    out.ok[i] = pz > 0.05f && uu >= 0.0f && vv >= 0.0f && uu < W && vv < H;
+  }
+}
+
+// Pass 2 packs the warped points that pass (intensity gradient g, residual
+// r, camera point p, 1/z, world point y, confidence); pass 3 turns them
+// into rows.
+struct PhotometricRows {
+  alignas(32) float gx[kPointBatch], gy[kPointBatch], r[kPointBatch], p[2][kPointBatch], inv_z[kPointBatch];
+  alignas(32) float y[3][kPointBatch], w[kPointBatch];
+  alignas(32) float J[6][kPointBatch], clipped[kPointBatch];
+};
+
+HXMAP_SIMD_CLONES void photometricRows(int n, const float R[9], float fx, float fy, float scale, float huber,
+                                       PhotometricRows& g) {
+  for (int i = 0; i < n; ++i) {
+    const float gx = g.gx[i], gy = g.gy[i], inv_z = g.inv_z[i];
+    // d r / d p_cur = g * d pi / d p.
+    const float d0 = gx * fx * inv_z, d1 = gy * fy * inv_z;
+    const float d2 = -(gx * fx * g.p[0][i] + gy * fy * g.p[1][i]) * inv_z * inv_z;
+    // p_cur = T^-1 y; left perturbation of T gives d r / d omega = (a x y)^T,
+    // d r / d v = -a^T with a = R (d r / d p_cur).
+    const float a0 = R[0] * d0 + R[1] * d1 + R[2] * d2;
+    const float a1 = R[3] * d0 + R[4] * d1 + R[5] * d2;
+    const float a2 = R[6] * d0 + R[7] * d1 + R[8] * d2;
+    const float y0 = g.y[0][i], y1 = g.y[1][i], y2 = g.y[2][i];
+    g.J[0][i] = scale * (a1 * y2 - a2 * y1);
+    g.J[1][i] = scale * (a2 * y0 - a0 * y2);
+    g.J[2][i] = scale * (a0 * y1 - a1 * y0);
+    g.J[3][i] = -scale * a0;
+    g.J[4][i] = -scale * a1;
+    g.J[5][i] = -scale * a2;
+    const float ar = std::abs(g.r[i]);
+    g.w[i] *= ar <= huber ? 1.0f : huber / ar;
+    g.clipped[i] = std::min(ar, 3.0f * huber);
+    g.r[i] *= scale;
   }
 }
 
 // Photometric residuals r = I_cur(pi(T^-1 y)) - I_ref of reference points y
 // in the world, added to acc.
-void accumulatePhotometric(const FrameLevel& cur, const std::vector<RefPoint>& points, const Eigen::Isometry3f& T,
+void accumulatePhotometric(const FrameLevel& cur, const RefPoints& points, const Eigen::Isometry3f& T,
                            const TrackingParams& params, Accumulation& acc) {
-  const Eigen::Isometry3f T_cur_world = T.inverse();
-  const Eigen::Matrix3f R = T.linear();
+  const RigidF T_cur_world(T.inverse());
+  float R[9];
+  for (int i = 0; i < 9; ++i) R[i] = T.linear()(i / 3, i % 3);
   const float fx = static_cast<float>(cur.camera.fx), fy = static_cast<float>(cur.camera.fy);
-  const float cx = static_cast<float>(cur.camera.cx), cy = static_cast<float>(cur.camera.cy);
+  const float k[4] = {fx, fy, static_cast<float>(cur.camera.cx), static_cast<float>(cur.camera.cy)};
   const float scale = static_cast<float>(params.photometric_scale_m);
   const float huber = static_cast<float>(params.photometric_huber);
   const float gmin2 = static_cast<float>(params.photometric_min_gradient * params.photometric_min_gradient);
   const float W = static_cast<float>(cur.intensity.cols - 2), H = static_cast<float>(cur.intensity.rows - 2);
-  for (const RefPoint& p : points) {
-    const Eigen::Vector3f y(p.y[0], p.y[1], p.y[2]);
-    const Eigen::Vector3f pc = T_cur_world * y;
-    if (pc.z() <= 0.05f) continue;
-    const float inv_z = 1.0f / pc.z();
-    const float uu = fx * pc.x() * inv_z + cx, vv = fy * pc.y() * inv_z + cy;
-    if (!(uu >= 0.0f && vv >= 0.0f && uu < W && vv < H)) continue;
-    // Occlusion: the current depth there must agree with the warped point.
-    const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
-    if (!(zc > 0.0f) || std::abs(zc - pc.z()) > 0.03f + 0.02f * pc.z()) continue;
-    const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
-    const float gx = ig.y(), gy = ig.z();
-    if (gx * gx + gy * gy < gmin2) continue;
-    const float r = ig.x() - p.intensity;
-    // d r / d p_cur = g * d pi / d p.
-    const Eigen::Vector3f g(gx * fx * inv_z, gy * fy * inv_z, -(gx * fx * pc.x() + gy * fy * pc.y()) * inv_z * inv_z);
-    // p_cur = T^-1 y; left perturbation of T gives d r / d omega = (a x y)^T,
-    // d r / d v = -a^T with a = R g.
-    const Eigen::Vector3f a = R * g;
-    const Eigen::Vector3f ay = scale * a.cross(y);
-    const float J[6] = {ay.x(), ay.y(), ay.z(), -scale * a.x(), -scale * a.y(), -scale * a.z()};
-    const float ar = std::abs(r);
-    acc.eq.add(J, p.conf * (ar <= huber ? 1.0f : huber / ar), scale * r);
-    acc.photometric_abs_sum += std::min(ar, 3.0f * huber);
-    ++acc.photometric_n;
+  PhotometricProjection proj;
+  PhotometricRows rows;
+  for (int b = 0; b < points.size(); b += kPointBatch) {
+    const int m = std::min(kPointBatch, points.size() - b);
+    projectRefPoints(points.x.data() + b, points.y.data() + b, points.z.data() + b, m, T_cur_world, k, W, H, proj);
+    int n = 0;
+    for (int i = 0; i < m; ++i) {
+      if (!proj.ok[i]) continue;
+      const float uu = proj.u[i], vv = proj.v[i], pz = proj.p[2][i];
+      // Occlusion: the current depth there must agree with the warped point.
+      const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
+      if (!(zc > 0.0f) || std::abs(zc - pz) > 0.03f + 0.02f * pz) continue;
+      const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
+      const float gx = ig.y(), gy = ig.z();
+      if (gx * gx + gy * gy < gmin2) continue;
+      rows.gx[n] = gx;
+      rows.gy[n] = gy;
+      rows.r[n] = ig.x() - points.intensity[b + i];
+      rows.p[0][n] = proj.p[0][i];
+      rows.p[1][n] = proj.p[1][i];
+      rows.inv_z[n] = proj.inv_z[i];
+      rows.y[0][n] = points.x[b + i];
+      rows.y[1][n] = points.y[b + i];
+      rows.y[2][n] = points.z[b + i];
+      rows.w[n] = points.conf[b + i];
+      ++n;
+    }
+    photometricRows(n, R, fx, fy, scale, huber, rows);
+    for (int i = 0; i < n; ++i) acc.photometric_abs_sum += rows.clipped[i];
+    float* const J[6] = {rows.J[0], rows.J[1], rows.J[2], rows.J[3], rows.J[4], rows.J[5]};
+    acc.eq.addColumns(J, rows.w, rows.r, n);
+    acc.photometric_n += n;
   }
-  acc.eq.flush();
 }
 
 }  // namespace
@@ -354,7 +513,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
                        : l;
     const bool photometric = use_photometric && static_cast<size_t>(l) < reference.frame->levels.size();
     const FrameBands frame_points = gatherFrameBands(frame.levels[l], stride, parallel);
-    std::array<std::vector<RefPoint>, kChunks> ref_points;
+    std::array<RefPoints, kChunks> ref_points;
     if (photometric) {
       const FrameLevel& ref = reference.frame->levels[pl];
       const Eigen::Isometry3f T_world_ref = reference.T_world_cam.cast<float>();
