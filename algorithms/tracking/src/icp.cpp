@@ -270,16 +270,18 @@ void accumulate(const FramePoints& points, const ModelView& model, const Eigen::
     projectFramePoints(points.px.data() + b, points.py.data() + b, points.pz.data() + b, points.nx.data() + b,
                        points.ny.data() + b, points.nz.data() + b, m, Tw, T_ref, k, mc.width, mc.height, proj);
     int n = 0;
+    // DESIGN: no branch per point. Every point is read (a point outside
+    // the image reads pixel 0) and written at the next free row, which it
+    // keeps only if it passes: the tests failed about half the time in no
+    // pattern a branch predictor could follow.
     for (int i = 0; i < m; ++i) {
-      if (!proj.ok[i]) continue;
-      const int pixel = static_cast<int>(proj.v[i]) * mc.width + static_cast<int>(proj.u[i]);
+      const int pixel = proj.ok[i] ? static_cast<int>(proj.v[i]) * mc.width + static_cast<int>(proj.u[i]) : 0;
       const cv::Vec3f& qn = normals[pixel];
-      if (qn[0] == 0 && qn[1] == 0 && qn[2] == 0) continue;
       const cv::Vec3f& qv = vertices[pixel];
       const float dx = proj.x[0][i] - qv[0], dy = proj.x[1][i] - qv[1], dz = proj.x[2][i] - qv[2];
-      if (dx * dx + dy * dy + dz * dz > max_d2) continue;
       const float cos_n = proj.n[0][i] * qn[0] + proj.n[1][i] * qn[1] + proj.n[2][i] * qn[2];
-      if (cos_n < cos_max) continue;
+      const bool keep = (proj.ok[i] != 0) & ((qn[0] != 0) | (qn[1] != 0) | (qn[2] != 0)) &
+                        (dx * dx + dy * dy + dz * dz <= max_d2) & (cos_n >= cos_max);
       for (int j = 0; j < 3; ++j) {
         rows.x[j][n] = proj.x[j][i];
         rows.q[j][n] = qv[j];
@@ -287,7 +289,7 @@ void accumulate(const FramePoints& points, const ModelView& model, const Eigen::
       }
       rows.w[n] = points.conf[b + i] * cos_n;  // w(p): confidence and normal consistency
       rows.z[n] = points.pz[b + i];
-      ++n;
+      n += keep;
     }
     geometricRows(n, huber, rows);
     for (int i = 0; i < n; ++i) {
@@ -448,15 +450,14 @@ void accumulatePhotometric(const FrameLevel& cur, const RefPoints& points, const
     const int m = std::min(kPointBatch, points.size() - b);
     projectRefPoints(points.x.data() + b, points.y.data() + b, points.z.data() + b, m, T_cur_world, k, W, H, proj);
     int n = 0;
-    for (int i = 0; i < m; ++i) {
-      if (!proj.ok[i]) continue;
-      const float uu = proj.u[i], vv = proj.v[i], pz = proj.p[2][i];
+    for (int i = 0; i < m; ++i) {  // no branch per point, as in accumulate()
+      const bool ok = proj.ok[i] != 0;
+      const float uu = ok ? proj.u[i] : 0.0f, vv = ok ? proj.v[i] : 0.0f, pz = proj.p[2][i];
       // Occlusion: the current depth there must agree with the warped point.
       const float zc = cur.depth.ptr<float>(static_cast<int>(vv + 0.5f))[static_cast<int>(uu + 0.5f)];
-      if (!(zc > 0.0f) || std::abs(zc - pz) > 0.03f + 0.02f * pz) continue;
       const Eigen::Vector3f ig = bilinear3(cur.intensity_grad, uu, vv);
       const float gx = ig.y(), gy = ig.z();
-      if (gx * gx + gy * gy < gmin2) continue;
+      const bool keep = ok & (zc > 0.0f) & (std::abs(zc - pz) <= 0.03f + 0.02f * pz) & (gx * gx + gy * gy >= gmin2);
       rows.gx[n] = gx;
       rows.gy[n] = gy;
       rows.r[n] = ig.x() - points.intensity[b + i];
@@ -467,7 +468,7 @@ void accumulatePhotometric(const FrameLevel& cur, const RefPoints& points, const
       rows.y[1][n] = points.y[b + i];
       rows.y[2][n] = points.z[b + i];
       rows.w[n] = points.conf[b + i];
-      ++n;
+      n += keep;
     }
     photometricRows(n, R, fx, fy, scale, huber, rows);
     for (int i = 0; i < n; ++i) acc.photometric_abs_sum += rows.clipped[i];
