@@ -84,12 +84,11 @@ namespace {
 // fractions; false when one is missing or has too little weight.
 bool gatherCorners(BlockCache& cache, float inv_voxel, const Eigen::Vector3f& p, float min_weight,
                    const VoxelBlock* blocks[8], int index[8], Eigen::Vector3f& frac) {
-  const Eigen::Vector3f q = p * inv_voxel - Eigen::Vector3f::Constant(0.5f);
-  const Eigen::Vector3f f = q.array().floor();
-  const Eigen::Vector3i base = f.cast<int>();
-  frac = q - f;
+  const float qx = p.x() * inv_voxel - 0.5f, qy = p.y() * inv_voxel - 0.5f, qz = p.z() * inv_voxel - 0.5f;
+  const int bx = floorToInt(qx), by = floorToInt(qy), bz = floorToInt(qz);  // no libm floor
+  frac = Eigen::Vector3f(qx - static_cast<float>(bx), qy - static_cast<float>(by), qz - static_cast<float>(bz));
   for (int c = 0; c < 8; ++c) {  // the cache makes repeated blocks cheap
-    blocks[c] = cache.blockOfVoxel(base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1), index[c]);
+    blocks[c] = cache.blockOfVoxel(Eigen::Vector3i(bx + (c & 1), by + ((c >> 1) & 1), bz + ((c >> 2) & 1)), index[c]);
     if (blocks[c] == nullptr) return false;
     const float w = blocks[c]->geo[index[c]].weight;
     if (w < min_weight || w <= 0) return false;
