@@ -143,6 +143,10 @@ struct RigidF {
       t[i] = T.translation()(i);
     }
   }
+  /// Row i of R (a, b, c)^T, plus t_i when `translate`.
+  float row(int i, float a, float b, float c, bool translate = true) const {
+    return r[3 * i] * a + r[3 * i + 1] * b + r[3 * i + 2] * c + (translate ? t[i] : 0.0f);
+  }
 };
 
 // The frame pixels of the point-to-plane term, one array per coordinate:
@@ -207,20 +211,16 @@ HXMAP_SIMD_CLONES void projectFramePoints(const float* px, const float* py, cons
   const float wf = static_cast<float>(mw), hf = static_cast<float>(mh);
   for (int i = 0; i < m; ++i) {
     const float a = px[i], b = py[i], c = pz[i];
-    const float rx = T_ref.r[0] * a + T_ref.r[1] * b + T_ref.r[2] * c + T_ref.t[0];
-    const float ry = T_ref.r[3] * a + T_ref.r[4] * b + T_ref.r[5] * c + T_ref.t[1];
-    const float rz = T_ref.r[6] * a + T_ref.r[7] * b + T_ref.r[8] * c + T_ref.t[2];
+    const float rx = T_ref.row(0, a, b, c), ry = T_ref.row(1, a, b, c), rz = T_ref.row(2, a, b, c);
     const float inv_z = rz > 0.0f ? 1.0f / rz : 0.0f;
     const float fu = k[0] * rx * inv_z + k[2] + 0.5f, fv = k[1] * ry * inv_z + k[3] + 0.5f;
     out.u[i] = fu;
     out.v[i] = fv;
     out.ok[i] = rz > 0.0f && fu >= 0.0f && fu < wf && fv >= 0.0f && fv < hf;
-    out.x[0][i] = T.r[0] * a + T.r[1] * b + T.r[2] * c + T.t[0];
-    out.x[1][i] = T.r[3] * a + T.r[4] * b + T.r[5] * c + T.t[1];
-    out.x[2][i] = T.r[6] * a + T.r[7] * b + T.r[8] * c + T.t[2];
-    out.n[0][i] = T.r[0] * nx[i] + T.r[1] * ny[i] + T.r[2] * nz[i];
-    out.n[1][i] = T.r[3] * nx[i] + T.r[4] * ny[i] + T.r[5] * nz[i];
-    out.n[2][i] = T.r[6] * nx[i] + T.r[7] * ny[i] + T.r[8] * nz[i];
+    for (int j = 0; j < 3; ++j) {
+      out.x[j][i] = T.row(j, a, b, c);
+      out.n[j][i] = T.row(j, nx[i], ny[i], nz[i], false);
+    }
   }
 }
 
@@ -381,9 +381,7 @@ HXMAP_SIMD_CLONES void projectRefPoints(const float* x, const float* y, const fl
                                         const float k[4], float W, float H, PhotometricProjection& out) {
   for (int i = 0; i < m; ++i) {
     const float a = x[i], b = y[i], c = z[i];
-    const float px = T.r[0] * a + T.r[1] * b + T.r[2] * c + T.t[0];
-    const float py = T.r[3] * a + T.r[4] * b + T.r[5] * c + T.t[1];
-    const float pz = T.r[6] * a + T.r[7] * b + T.r[8] * c + T.t[2];
+    const float px = T.row(0, a, b, c), py = T.row(1, a, b, c), pz = T.row(2, a, b, c);
     const float inv_z = pz > 0.05f ? 1.0f / pz : 0.0f;
     const float uu = k[0] * px * inv_z + k[2], vv = k[1] * py * inv_z + k[3];
     out.p[0][i] = px;
