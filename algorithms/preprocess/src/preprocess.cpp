@@ -148,8 +148,9 @@ cv::Mat intensityWithGradient(const cv::Mat& intensity, const ParallelFor& paral
   parallel(static_cast<size_t>(intensity.rows), [&](size_t v0, size_t v1) {
     // DESIGN: the stencil runs over a row into two plain arrays (SIMD),
     // then the three channels are interleaved; computed in place in the
-    // interleaved image it stayed scalar, and at full resolution it was a
-    // third of preprocessing.
+    // interleaved image it stayed scalar. With the branch-free depth
+    // halving and normals below: preprocessing 4.9 -> 4.2 ms per TUM frame
+    // on one core.
     std::vector<float> gu(static_cast<size_t>(cols), 0.0f), gv(static_cast<size_t>(cols), 0.0f);
     for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
       const float* r1 = intensity.ptr<float>(v);
@@ -200,8 +201,10 @@ struct VertexRows {
 };
 
 // Normals of pixels [1, cols - 1) of the middle row into nx, ny, nz (0
-// where there is none), with no branch per pixel (the loop vectorizes).
-void normalRow(const VertexRows& r, int cols, float k_jump, float sigma_a, float sigma_b, float* nx,
+// where there is none), with no branch per pixel: the loop vectorizes once
+// inlined into computeNormals, which sees that the twelve arrays do not
+// overlap (as a separate AVX2 clone it did not vectorize at all).
+inline void normalRow(const VertexRows& r, int cols, float k_jump, float sigma_a, float sigma_b, float* nx,
                                  float* ny, float* nz) {
   const float *xt = r.xt, *yt = r.yt, *zt = r.zt, *xm = r.xm, *ym = r.ym, *zm = r.zm, *xb = r.xb, *yb = r.yb,
               *zb = r.zb;
