@@ -155,5 +155,35 @@ TEST_F(LoopClosureRun, ChangesNothingWithoutDriftOrOnTheOrbit) {
   EXPECT_LT(o.ate_m, 0.01);
 }
 
+TEST(LoopKeyframeImages, OwnCopiesShareWhatTheOriginalsShared) {
+  // The real-time loop closer takes each keyframe's images as copies of its
+  // own, so that the frontend's buffers are free again at once.
+  LoopKeyframe kf;
+  kf.frame.depth_m = cv::Mat(48, 64, CV_32F, cv::Scalar(1.5f));
+  kf.frame.rgb = cv::Mat(48, 64, CV_8UC3, cv::Scalar(10, 20, 30));
+  kf.frame.levels.resize(2);
+  kf.frame.levels[0].depth = kf.frame.depth_m;  // the same buffer, as preprocessing leaves it
+  kf.frame.levels[1].confidence = cv::Mat(24, 32, CV_32F, cv::Scalar(0.5f));
+  kf.previous = kf.frame;  // headers, as the frontend hands them over
+  kf.observation.depth_m = kf.frame.depth_m;
+  kf.observation.rgb = kf.frame.rgb;
+  kf.observation.confidence = kf.frame.levels[1].confidence;
+  cv::Mat original_depth = kf.frame.depth_m;
+  const LoopKeyframe own = withOwnImages(kf);
+  ASSERT_EQ(own.frame.depth_m.size(), original_depth.size());
+  EXPECT_NE(own.frame.depth_m.data, original_depth.data);
+  EXPECT_EQ(own.frame.levels[0].depth.data, own.frame.depth_m.data);  // copied once, still shared
+  EXPECT_EQ(own.observation.depth_m.data, own.frame.depth_m.data);
+  ASSERT_TRUE(own.previous.has_value());
+  EXPECT_EQ(own.previous->depth_m.data, own.frame.depth_m.data);
+  EXPECT_EQ(own.observation.confidence.data, own.frame.levels[1].confidence.data);
+  EXPECT_NE(own.observation.rgb.data, kf.frame.rgb.data);
+  // The copies hold the same values and no longer see the original.
+  original_depth.setTo(9.0f);
+  EXPECT_FLOAT_EQ(own.frame.depth_m.at<float>(10, 10), 1.5f);
+  EXPECT_FLOAT_EQ(own.observation.confidence.at<float>(3, 4), 0.5f);
+  EXPECT_EQ(own.frame.rgb.at<cv::Vec3b>(5, 5), cv::Vec3b(10, 20, 30));
+}
+
 }  // namespace
 }  // namespace hxmap::rt

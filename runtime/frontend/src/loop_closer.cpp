@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <tuple>
 
 #include <spdlog/spdlog.h>
 
@@ -27,7 +28,39 @@ std::pair<double, double> largestMove(const std::map<uint32_t, Eigen::Isometry3d
   }
   return {m, deg};
 }
+// Deep copies of images, a shared buffer copied once (the copies share it
+// as the originals did).
+class ImageCopier {
+ public:
+  void copy(cv::Mat& m) {
+    if (m.empty()) return;
+    const Key key{m.data, m.rows, m.cols, m.type()};
+    auto it = copies_.find(key);
+    if (it == copies_.end()) it = copies_.emplace(key, m.clone()).first;
+    m = it->second;
+  }
+  void copy(alg::PreprocessedFrame& f) {
+    for (cv::Mat* m : {&f.depth_m, &f.rgb, &f.intensity}) copy(*m);
+    for (alg::FrameLevel& l : f.levels) {
+      for (cv::Mat* m : {&l.depth, &l.vertex, &l.normal, &l.confidence, &l.intensity, &l.intensity_grad}) copy(*m);
+    }
+  }
+
+ private:
+  using Key = std::tuple<const uchar*, int, int, int>;
+  std::map<Key, cv::Mat> copies_;
+};
 }  // namespace
+
+LoopKeyframe withOwnImages(LoopKeyframe kf) {
+  ImageCopier copier;
+  if (kf.previous) copier.copy(*kf.previous);
+  copier.copy(kf.frame);
+  copier.copy(kf.observation.depth_m);
+  copier.copy(kf.observation.rgb);
+  copier.copy(kf.observation.confidence);
+  return kf;
+}
 
 LoopCloser::LoopCloser(const LoopCloserParams& params, const alg::PinholeCamera& camera, ParallelFor parallel)
     : params_(params),

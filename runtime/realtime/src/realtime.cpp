@@ -403,7 +403,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       LoopKeyframe kf;
       while (!workers_stop.load()) {
         const uint64_t seen = loop_pushed.load(std::memory_order_acquire);
-        while (loop_keyframes.tryPop(kf)) closer->add(std::move(kf));
+        while (loop_keyframes.tryPop(kf)) closer->add(withOwnImages(std::move(kf)));
         if (!closer->busy()) {
           loop_pushed.wait(seen, std::memory_order_acquire);  // no polling
           continue;

@@ -82,6 +82,14 @@ struct LoopKeyframe {
   alg::DepthObservation observation;  ///< what the keyframe map fuses (pose: T_world_kf)
 };
 
+/// The keyframe with images of its own: every image deep-copied (a buffer
+/// that several images share is copied once). A real-time loop closer
+/// thread calls it on each keyframe it takes from the frontend, so that the
+/// frontend's buffers are free again at once and the copies' first-touch
+/// page faults are paid on the background thread, not by the frontend's
+/// next frame.
+LoopKeyframe withOwnImages(LoopKeyframe kf);
+
 /// An accepted closure, for the frontend to apply between frames.
 struct LoopCorrection {
   uint64_t epoch = 0;  ///< the frontend's correction count once applied (the first is 1)
