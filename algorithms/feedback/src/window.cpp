@@ -96,6 +96,66 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
   }
 }
 
+PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& from, const Eigen::Isometry3d& to,
+                                            const FeedbackMaps& maps) const {
+  Verification out;
+  if (j >= slots_.size() || params_.verify_stride <= 0) return out;
+  const Slot& slot = slots_[j];
+  const int stride = params_.verify_stride;
+  std::vector<Eigen::Vector2i> pixels;
+  for (int v = stride / 2; v < slot.usable.rows; v += stride) {
+    const uint8_t* row = slot.usable.ptr<uint8_t>(v);
+    for (int u = stride / 2; u < slot.usable.cols; u += stride) {
+      if (row[u]) pixels.emplace_back(u, v);
+    }
+  }
+  out.pixels = static_cast<int>(pixels.size());
+  const std::vector<PixelSample> samples = gather(j, pixels);
+  // In chunks: each evaluation holds the maps' lock (when shared with a
+  // writer) for about a millisecond, as a window keyframe's does.
+  auto evaluate = [&](const Eigen::Isometry3d& T) {
+    constexpr size_t kChunk = 2048;
+    Linearization sum;
+    std::vector<PixelSample> chunk;
+    for (size_t begin = 0; begin < samples.size(); begin += kChunk) {
+      chunk.assign(samples.begin() + static_cast<std::ptrdiff_t>(begin),
+                   samples.begin() + static_cast<std::ptrdiff_t>(std::min(samples.size(), begin + kChunk)));
+      const Linearization l = linearizeSamples(j, T, maps, chunk, nullptr);
+      sum.cost += l.cost;
+      sum.depth_cost += l.depth_cost;
+      sum.photo_cost += l.photo_cost;
+      sum.counts.depth_explicit += l.counts.depth_explicit;
+      sum.counts.depth_implicit += l.counts.depth_implicit;
+      sum.counts.photo_explicit += l.counts.photo_explicit;
+      sum.counts.photo_implicit += l.counts.photo_implicit;
+    }
+    return sum;
+  };
+  const Linearization a = evaluate(from);
+  const Linearization b = evaluate(to);
+  // A residual counted at one pose only is charged at the other as one at
+  // its gate (each channel with its own weight).
+  const FeedbackParams& p = params_;
+  const double depth_gate = huberCost(p.depth_gate_m / p.depth_sigma_m);
+  const double photo_gate = huberCost(p.photo_gate / p.photo_sigma);
+  auto charge = [](int na, int nb, double lambda_gate, double& ca, double& cb) {
+    ca += std::max(0, nb - na) * lambda_gate;
+    cb += std::max(0, na - nb) * lambda_gate;
+  };
+  out.depth_from = a.depth_cost, out.depth_to = b.depth_cost;
+  out.photo_from = a.photo_cost, out.photo_to = b.photo_cost;
+  charge(a.counts.depth_explicit, b.counts.depth_explicit, p.lambda_depth_explicit * depth_gate, out.depth_from,
+         out.depth_to);
+  charge(a.counts.depth_implicit, b.counts.depth_implicit, p.lambda_depth_implicit * depth_gate, out.depth_from,
+         out.depth_to);
+  charge(a.counts.photo_explicit, b.counts.photo_explicit, p.lambda_photo_explicit * photo_gate, out.photo_from,
+         out.photo_to);
+  charge(a.counts.photo_implicit, b.counts.photo_implicit, p.lambda_photo_implicit * photo_gate, out.photo_from,
+         out.photo_to);
+  out.passed = out.pixels > 0 && out.depth_to <= out.depth_from && out.photo_to <= out.photo_from;
+  return out;
+}
+
 std::vector<PoseWindow::PixelSample> PoseWindow::gather(size_t j, const std::vector<Eigen::Vector2i>& pixels) const {
   std::vector<PixelSample> out;
   out.reserve(pixels.size());

@@ -267,6 +267,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("lm_initial_damping", f.lm_initial_damping, 0, kBig);
   v.number("min_correction_chi2", f.min_correction_chi2, 0, kBig);
   v.boolean("require_channel_agreement", f.require_channel_agreement);
+  v.integer("verify_stride", f.verify_stride, 0, 64);
   v.number("reintegrate_translation_m", f.reintegrate_translation_m, 0, 10);
   v.number("reintegrate_rotation_deg", f.reintegrate_rotation_deg, 0, 180);
 

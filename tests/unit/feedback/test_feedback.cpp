@@ -362,6 +362,44 @@ TEST_F(FeedbackTest, ChannelAgreementSeesAnImageThatDisagreesWithItsDepth) {
   }
 }
 
+TEST_F(FeedbackTest, DenseCheckTakesAMoveTowardTheTruthAndRefusesOneAway) {
+  // A keyframe rendered at its true pose, checked between the truth and
+  // poses off it: a correction toward the truth passes, one away is
+  // refused, including one so far that most residuals leave their gates
+  // (which would lower an uncharged cost).
+  FeedbackParams p;
+  p.window = 2;
+  PoseWindow window(p);
+  WindowKeyframe kf = keyframe(14);
+  const Eigen::Isometry3d truth = kf.T_world_cam;
+  window.add(std::move(kf), maps());
+  const Eigen::Isometry3d near =
+      truth * expSE3((Vector6d() << 0.3 * kDeg, -0.2 * kDeg, 0, 0.004, 0.003, -0.002).finished());
+  const Eigen::Isometry3d far = truth * expSE3((Vector6d() << 10 * kDeg, 0, 0, 0.25, -0.2, 0.15).finished());
+
+  const PoseWindow::Verification toward = window.verify(0, near, truth, maps());
+  EXPECT_GT(toward.pixels, 240 * 180 / 4 / 2);  // every 2nd pixel both ways; most have depth
+  EXPECT_TRUE(toward.passed) << toward.depth_from << " -> " << toward.depth_to << ", " << toward.photo_from << " -> "
+                             << toward.photo_to;
+  EXPECT_LT(toward.depth_to, 0.8 * toward.depth_from);
+  const PoseWindow::Verification away = window.verify(0, truth, near, maps());
+  EXPECT_FALSE(away.passed);
+  const PoseWindow::Verification far_away = window.verify(0, near, far, maps());
+  EXPECT_FALSE(far_away.passed) << far_away.depth_from << " -> " << far_away.depth_to;
+  EXPECT_GT(far_away.depth_to, 2 * far_away.depth_from);
+  // Uncharged, the far pose's few residuals left inside the gates cost
+  // less than the near pose's.
+  const PoseWindow::Linearization at_near = window.linearize(0, near, maps(), window.basePixels(0));
+  const PoseWindow::Linearization at_far = window.linearize(0, far, maps(), window.basePixels(0));
+  EXPECT_LT(at_far.counts.depth_explicit * 20, at_near.counts.depth_explicit);
+  EXPECT_LT(at_far.depth_cost, at_near.depth_cost);
+
+  p.verify_stride = 0;  // no check: nothing to pass
+  PoseWindow unchecked(p);
+  unchecked.add(keyframe(14), maps());
+  EXPECT_FALSE(unchecked.verify(0, near, truth, maps()).passed);
+}
+
 TEST_F(FeedbackTest, TangentPlanesReproduceTheCastAndFollowItNearby) {
   // The solve's steps between casts evaluate the residuals on the tangent
   // planes of the last cast: at the cast's pose exactly the cast, and a

@@ -111,6 +111,20 @@ class PoseWindow {
   /// LM iterations of the next solves (the scheduler's effort level).
   void setIterations(int n) { params_.iterations = std::max(1, n); }
 
+  /// A correction checked on a dense pixel grid (every params.verify_stride-th
+  /// usable pixel of keyframe j, in both directions) rather than the
+  /// window's samples: depth and photometric costs at the pose the frontend
+  /// has (`from`) and at the window's (`to`), cast afresh at each. A
+  /// residual beyond its gate at one pose and not the other counts as one
+  /// at the gate, so that a pose cannot lower its cost by losing residuals.
+  struct Verification {
+    int pixels = 0;
+    double depth_from = 0, depth_to = 0, photo_from = 0, photo_to = 0;
+    bool passed = false;  ///< neither cost rose
+  };
+  Verification verify(size_t j, const Eigen::Isometry3d& from, const Eigen::Isometry3d& to,
+                      const FeedbackMaps& maps) const;
+
   /// Keyframe j's residual factor at pose T on `pixels` (u, v at the
   /// image level): 0.5 sum w r^2, and the Gauss-Newton H and b (d cost /
   /// d xi = b). Exposed for tests and the marginalization.

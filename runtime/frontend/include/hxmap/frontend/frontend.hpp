@@ -415,6 +415,10 @@ class Frontend {
 struct FeedbackTally {
   uint64_t windows = 0, stopped = 0, failed = 0;
   uint64_t corrections_sent = 0;           ///< keyframe estimates that stood out of the solve's noise
+  /// Of the estimates that stood out, how many were checked densely
+  /// (FeedbackParams::verify_stride) and refused there, and the checks' time.
+  uint64_t verified = 0, refused = 0;
+  double verify_ms = 0;
   std::vector<double> solve_ms;            ///< per solved window, without the stop callback's waits
   double cost_before = 0, cost_after = 0;  ///< summed over windows
   /// Residuals at the solution, summed over windows: explicit (TSDF) and
