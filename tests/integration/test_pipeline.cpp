@@ -168,7 +168,7 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   alg::FeedbackParams fp;
   fp.window = 4;
   alg::PoseWindow window(fp);
-  alg::FeedbackMaps maps{&fe.map(), {surfaces.front().get()}, nullptr};
+  alg::FeedbackMaps maps{&fe.map(), {surfaces.front().get()}};
   int implicit = 0;
   for (const auto& k : job.keyframes) {
     alg::WindowKeyframe w;

@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <mutex>
-#include <shared_mutex>
 
 #include <Eigen/Cholesky>
 
@@ -44,8 +42,13 @@ PoseWindow::PoseWindow(const FeedbackParams& params)
     : params_(params), rng_state_(0x9E3779B97F4A7C15ull ^ (static_cast<uint64_t>(params.seed) + 1)) {}
 
 void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
+  // Into a new buffer: the keyframe's intensity is shared with its frame
+  // (the frontend's photometric reference, read on another thread).
   cv::Mat I = kf.intensity;
-  if (params_.photo_blur_px > 0) cv::GaussianBlur(kf.intensity, I, cv::Size(0, 0), params_.photo_blur_px);
+  if (params_.photo_blur_px > 0) {
+    I = cv::Mat();
+    cv::GaussianBlur(kf.intensity, I, cv::Size(0, 0), params_.photo_blur_px);
+  }
   slot.intensity = I;
   slot.grad_x = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
   slot.grad_y = cv::Mat(I.size(), CV_32F, cv::Scalar(0));
@@ -111,8 +114,7 @@ PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& f
   }
   out.pixels = static_cast<int>(pixels.size());
   const std::vector<PixelSample> samples = gather(j, pixels);
-  // In chunks: each evaluation holds the maps' lock (when shared with a
-  // writer) for about a millisecond, as a window keyframe's does.
+  // In chunks of a window keyframe's size.
   auto evaluate = [&](const Eigen::Isometry3d& T) {
     constexpr size_t kChunk = 2048;
     Linearization sum;
@@ -249,8 +251,6 @@ PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Is
   if (hits) hits->clear();
   const WindowKeyframe& kf = keyframes_[j];
   if (!maps.tsdf || kf.intensity.empty()) return L;
-  std::shared_lock<std::shared_mutex> lock;
-  if (maps.mutex) lock = std::shared_lock<std::shared_mutex>(*maps.mutex);
   BlockCache cache(*maps.tsdf);
   const PinholeCamera& cam = kf.camera;
   const FeedbackParams& p = params_;

@@ -17,6 +17,23 @@
 namespace hxmap::rt {
 
 namespace {
+/// The world box of a camera-frame vertex map's valid points (z > 0) at
+/// T_world_cam, widened by `margin_m`; empty when none is valid.
+Eigen::AlignedBox3f viewBox(const cv::Mat& vertex, const Eigen::Isometry3f& T_world_cam, float margin_m) {
+  Eigen::AlignedBox3f box;
+  for (int v = 0; v < vertex.rows; ++v) {
+    const cv::Vec3f* row = vertex.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < vertex.cols; ++u) {
+      if (row[u][2] > 0.0f) box.extend(T_world_cam * Eigen::Vector3f(row[u][0], row[u][1], row[u][2]));
+    }
+  }
+  if (!box.isEmpty()) {
+    box.min().array() -= margin_m;
+    box.max().array() += margin_m;
+  }
+  return box;
+}
+
 class StageTimer {
  public:
   explicit StageTimer(double& out_ms) : out_(out_ms), start_(std::chrono::steady_clock::now()) {}
@@ -152,7 +169,6 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
   {
     StageTimer t(r.stage_ms[kIntegrate]);
     alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, camera_, T.cast<float>()};
-    const std::unique_lock lock(map_mutex_);
     alg::integrate(map_, obs, parallel_);
   }
   followPose(T, pre);
@@ -448,6 +464,7 @@ void Frontend::keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::Ic
   // The buffers fusion read (a frame's buffers are never written after preprocessing).
   k.observation = {last_frame_.depth_m, last_frame_.rgb, last_frame_.levels[last_frame_.finest].confidence, camera_,
                    T_last_.cast<float>()};
+  k.box_world = viewBox(last_frame_.levels.back().vertex, T_last_.cast<float>(), map_.truncation() + map_.blockSize());
   kept_.push_back(std::move(k));
   // The window's keyframes and one more (a correction in flight for the one
   // that just slid out still lands).
@@ -473,6 +490,19 @@ void Frontend::keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::Ic
     w.odometry_information = Ad.transpose() * icp->information * Ad;
   }
   feedback_out_.push_back(std::move(w));
+}
+
+std::shared_ptr<const alg::TsdfMap> Frontend::feedbackSnapshot() {
+  const auto t0 = std::chrono::steady_clock::now();
+  Eigen::AlignedBox3f box;  // empty
+  for (const KeptKeyframe& k : kept_) box.extend(k.box_world);
+  auto snapshot = std::make_shared<const alg::TsdfMap>(box.isEmpty() ? alg::TsdfMap(map_.params())
+                                                                      : alg::copyBlocks(map_, box));
+  ++feedback_counters_.snapshots;
+  feedback_counters_.snapshot_blocks += snapshot->blockCount();
+  feedback_counters_.snapshot_ms +=
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return snapshot;
 }
 
 std::vector<alg::WindowKeyframe> Frontend::takeFeedbackKeyframes() {
@@ -531,14 +561,11 @@ int Frontend::reintegratePending(int max) {
     if (it == kept_.end() || it->trajectory_index >= trajectory_.size()) continue;
     const auto t0 = std::chrono::steady_clock::now();
     const Eigen::Isometry3d T_new = trajectory_[it->trajectory_index].T_world_cam;
-    {
-      const std::unique_lock lock(map_mutex_);
-      alg::DepthObservation obs = it->observation;
-      obs.T_world_cam = it->T_fused.cast<float>();
-      alg::deintegrate(map_, obs, parallel_);
-      obs.T_world_cam = T_new.cast<float>();
-      alg::integrate(map_, obs, parallel_);
-    }
+    alg::DepthObservation obs = it->observation;
+    obs.T_world_cam = it->T_fused.cast<float>();
+    alg::deintegrate(map_, obs, parallel_);
+    obs.T_world_cam = T_new.cast<float>();
+    alg::integrate(map_, obs, parallel_);
     it->T_fused = T_new;
     ++feedback_counters_.reintegrations;
     feedback_counters_.reintegrate_ms +=
@@ -580,7 +607,12 @@ std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackPa
       static_cast<double>(implicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)), corrections_sent,
       verified, refused, verified ? verify_ms / static_cast<double>(verified) : 0.0, c.corrections, c.corrections_late,
       c.reintegrations, c.reintegrations ? c.reintegrate_ms / static_cast<double>(c.reintegrations) : 0.0,
-      c.reintegrations_pending);
+      c.reintegrations_pending) +
+         (c.snapshots == 0 ? std::string()
+                           : fmt::format("  map copies for the feedback thread: {}, {:.0f} blocks and {:.2f} ms each "
+                                         "(on the frontend's thread)\n",
+                                         c.snapshots, static_cast<double>(c.snapshot_blocks) / c.snapshots,
+                                         c.snapshot_ms / static_cast<double>(c.snapshots)));
 }
 
 void FeedbackSolver::add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& maps) {
@@ -647,7 +679,7 @@ bool SerialFeedback::step(Frontend& frontend) {
   std::vector<alg::WindowKeyframe> kfs = frontend.takeFeedbackKeyframes();
   if (kfs.empty()) return false;
   const auto surfaces = frontend.implicitSurfaces();
-  alg::FeedbackMaps maps{&frontend.map(), {}, nullptr};
+  alg::FeedbackMaps maps{&frontend.map(), {}};
   for (const auto& s : surfaces) maps.implicit.push_back(s.get());
   for (auto& kf : kfs) solver_.add(std::move(kf), maps);
   for (const KeyframeCorrection& c : solver_.solve(maps)) frontend.applyKeyframeCorrection(c);
@@ -826,7 +858,6 @@ alg::PatchStats Frontend::applyRefinement(const RefineOutcome& outcome) {
       details_.pop_front();
     }
   }
-  const std::unique_lock lock(map_mutex_);
   return alg::applyPatch(map_, outcome.result.patch);
 }
 
@@ -845,7 +876,6 @@ alg::TriangleMesh Frontend::mesh(const alg::MeshParams& params) const {
 }
 
 alg::PatchStats Frontend::applyPatch(const alg::TsdfPatch& patch) {
-  const std::unique_lock lock(map_mutex_);
   return alg::applyPatch(map_, patch);
 }
 

@@ -88,7 +88,6 @@ void Frontend::applyLoopCorrection(LoopCorrection& c) {
     // Revisions go on from the old map's, every block changed: map
     // publishers that follow revisions send the whole new map.
     c.map->markAllChanged(map_.revision());
-    const std::unique_lock lock(map_mutex_);
     map_ = std::move(*c.map);
   }
   c.map.reset();

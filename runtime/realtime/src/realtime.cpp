@@ -112,7 +112,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   std::string source_error;                            // sensor thread until joined
   // Pose feedback: keyframes (images shared, not copied) to the feedback
   // thread, keyframe corrections back.
-  SpscRing<alg::WindowKeyframe> keyframes(16);
+  SpscRing<FeedbackInput> keyframes(16);
   // ROI refinement: jobs from the frontend to each worker, outcomes back
   // (one ring per direction and worker: single producer, single consumer).
   // Outcomes and pose corrections are applied by the frontend between
@@ -157,6 +157,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   SpscRing<LoopKeyframe> loop_keyframes(32);
   SpscRing<LoopCorrection> loop_corrections(4);
   std::deque<LoopKeyframe> loop_backlog;  // frontend thread
+  std::vector<alg::WindowKeyframe> feedback_backlog;  // frontend thread: keyframes waiting for a map copy
   std::deque<LoopCorrection> loop_unsent;  // loop thread until joined: corrections the ring had no room for
   std::atomic<uint64_t> loop_pushed{0}, loop_slices{0}, loop_forced{0}, loop_waits{0};
   uint64_t loop_applied = 0;  // frontend thread
@@ -278,10 +279,22 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
           jobs_pushed.notify_all();
         }
       }
-      for (alg::WindowKeyframe& kf : frontend.takeFeedbackKeyframes()) {
-        if (!keyframes.tryPush(std::move(kf))) keyframes_full.fetch_add(1);
-        keyframes_pushed.fetch_add(1, std::memory_order_release);
-        keyframes_pushed.notify_one();
+      // The feedback thread solves on a copy of the map around the window,
+      // made after a frame with the slack for it (a keyframe's own frame
+      // seldom has it): the keyframes wait for it here.
+      for (alg::WindowKeyframe& kf : frontend.takeFeedbackKeyframes()) feedback_backlog.push_back(std::move(kf));
+      if (!feedback_backlog.empty()) {
+        const FeedbackCounters fc = frontend.feedbackCounters();
+        const double copy_ms = fc.snapshots > 0 ? fc.snapshot_ms / static_cast<double>(fc.snapshots) : 4.0;
+        if (sched.slackMs(now_ns()) > 1.5 * copy_ms) {
+          const std::shared_ptr<const alg::TsdfMap> snapshot = frontend.feedbackSnapshot();
+          for (alg::WindowKeyframe& kf : feedback_backlog) {
+            if (!keyframes.tryPush({std::move(kf), snapshot})) keyframes_full.fetch_add(1);
+          }
+          feedback_backlog.clear();
+          keyframes_pushed.fetch_add(1, std::memory_order_release);
+          keyframes_pushed.notify_one();
+        }
       }
       for (LoopKeyframe& kf : frontend.takeLoopKeyframes()) loop_backlog.push_back(std::move(kf));
       bool loop_sent = false;
@@ -310,23 +323,27 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
 
   // Pose feedback (paper 3.4): new keyframes join the window, then the
   // window is solved in scheduler-admitted slices (one keyframe's
-  // evaluation each, under the map's shared lock), with as many LM
+  // evaluation each), on the map copy that came with the newest keyframe,
+  // with as many LM
   // iterations as the scheduler's effort level allows (0: the window waits
   // for the next keyframe). Corrections go back to the frontend.
   std::thread feedback([&] {
     nameThisThread("hx-feedback");
     niceThisThread("hx-feedback", options.background_nice);
     FeedbackSolver solver(feedback_params);
-    alg::FeedbackMaps maps{&frontend.map(), {}, &frontend.mapMutex()};
+    std::shared_ptr<const alg::TsdfMap> snapshot;
+    alg::FeedbackMaps maps;
     // The refined regions' fields (shared: a field lives while a solve uses it).
     std::vector<std::shared_ptr<const alg::ImplicitSurface>> surfaces;
     const int max_effort = std::max(1, sp.max_feedback_effort);
-    alg::WindowKeyframe kf;
+    FeedbackInput in;
     while (!workers_stop.load()) {
       const uint64_t seen = keyframes_pushed.load(std::memory_order_acquire);
       bool added = false;
-      while (keyframes.tryPop(kf)) {
-        solver.add(std::move(kf), maps);
+      while (keyframes.tryPop(in)) {
+        snapshot = std::move(in.map);
+        maps.tsdf = snapshot.get();
+        solver.add(std::move(in.keyframe), maps);
         keyframes_seen.fetch_add(1);
         added = true;
       }
@@ -384,7 +401,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         if (!corrections.tryPush(c)) corrections_full.fetch_add(1);
       }
     }
-    while (keyframes.tryPop(kf)) keyframes_seen.fetch_add(1);
+    while (keyframes.tryPop(in)) keyframes_seen.fetch_add(1);
     feedback_tally = solver.tally();
   });
 

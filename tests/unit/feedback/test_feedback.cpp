@@ -372,7 +372,9 @@ TEST_F(FeedbackTest, DenseCheckTakesAMoveTowardTheTruthAndRefusesOneAway) {
   PoseWindow window(p);
   WindowKeyframe kf = keyframe(14);
   const Eigen::Isometry3d truth = kf.T_world_cam;
+  const cv::Mat shared_intensity = kf.intensity, original = kf.intensity.clone();
   window.add(std::move(kf), maps());
+  EXPECT_EQ(cv::norm(shared_intensity, original, cv::NORM_INF), 0.0) << "the window blurs a copy, not the frame's image";
   const Eigen::Isometry3d near =
       truth * expSE3((Vector6d() << 0.3 * kDeg, -0.2 * kDeg, 0, 0.004, 0.003, -0.002).finished());
   const Eigen::Isometry3d far = truth * expSE3((Vector6d() << 10 * kDeg, 0, 0, 0.25, -0.2, 0.15).finished());

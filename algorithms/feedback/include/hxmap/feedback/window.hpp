@@ -17,7 +17,6 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
-#include <shared_mutex>
 #include <string>
 #include <vector>
 
@@ -52,10 +51,6 @@ struct WindowKeyframe {
 struct FeedbackMaps {
   const TsdfMap* tsdf = nullptr;
   std::vector<const ImplicitSurface*> implicit;
-  /// When the TSDF has a writer on another thread: held shared for each
-  /// keyframe's evaluation (a millisecond or so), so the writer waits at
-  /// most that long.
-  std::shared_mutex* mutex = nullptr;
 };
 
 /// Residual counts and robust costs per channel, summed over the window.

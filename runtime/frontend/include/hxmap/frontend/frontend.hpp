@@ -9,7 +9,6 @@
 #include <memory>
 #include <mutex>
 #include <optional>
-#include <shared_mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -146,6 +145,14 @@ struct RunCounters {
 };
 
 /// Pose feedback's estimate of a keyframe's pose.
+/// A keyframe for a pose-feedback solver on another thread, with the map
+/// copy to solve on (Frontend::feedbackSnapshot; shared by the keyframes
+/// handed over together).
+struct FeedbackInput {
+  alg::WindowKeyframe keyframe;
+  std::shared_ptr<const alg::TsdfMap> map;
+};
+
 struct KeyframeCorrection {
   uint32_t keyframe_id = 0;
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
@@ -158,6 +165,9 @@ struct FeedbackCounters {
   uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
   uint64_t reintegrations_pending = 0;
   double reintegrate_ms = 0;  ///< total
+  uint64_t snapshots = 0;     ///< map copies for a feedback thread (feedbackSnapshot)
+  uint64_t snapshot_blocks = 0;
+  double snapshot_ms = 0;     ///< total
 };
 
 /// How tracking found its poses, summed over a run.
@@ -231,9 +241,11 @@ class Frontend {
     c.reintegrations_pending = reintegrate_queue_.size();
     return c;
   }
-  /// Held exclusively while the frontend writes the map; readers on other
-  /// threads (pose feedback) hold it shared.
-  std::shared_mutex& mapMutex() const { return map_mutex_; }
+  /// A copy of the map's blocks around the keyframes kept for pose
+  /// feedback, for a solver on another thread (the map has one writer, the
+  /// frontend; readers work on copies). Between frames, on the frontend's
+  /// thread; timed in feedbackCounters().
+  std::shared_ptr<const alg::TsdfMap> feedbackSnapshot();
 
   /// The ROI refinement jobs made since the last call (paper 3.3).
   std::vector<RefineJob> takeRefineJobs();
@@ -389,6 +401,7 @@ class Frontend {
     size_t trajectory_index = 0;
     Eigen::Isometry3d T_fused = Eigen::Isometry3d::Identity();  ///< the pose its observation is in the map at
     alg::DepthObservation observation;
+    Eigen::AlignedBox3f box_world;  ///< what it sees, widened by the truncation band
   };
   std::deque<KeptKeyframe> kept_;  ///< newest last
   std::vector<alg::WindowKeyframe> feedback_out_;
@@ -403,7 +416,6 @@ class Frontend {
   uint64_t loop_epoch_ = 0;
   LoopClosureCounters loop_counters_;
   uint64_t map_epoch_ = 0;
-  mutable std::shared_mutex map_mutex_;
   mutable std::mutex surfaces_mutex_;
   std::deque<std::shared_ptr<const alg::FieldSurface>> surfaces_;  ///< newest first
   std::deque<std::shared_ptr<const alg::RefinedDetail>> details_;  ///< oldest first (under surfaces_mutex_)
