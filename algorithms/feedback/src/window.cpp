@@ -100,7 +100,7 @@ void PoseWindow::prepare(Slot& slot, const WindowKeyframe& kf) const {
 }
 
 PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& from, const Eigen::Isometry3d& to,
-                                            const FeedbackMaps& maps) const {
+                                            const FeedbackMaps& maps, const std::function<bool()>& stop) const {
   Verification out;
   if (j >= slots_.size() || params_.verify_stride <= 0) return out;
   const Slot& slot = slots_[j];
@@ -114,12 +114,16 @@ PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& f
   }
   out.pixels = static_cast<int>(pixels.size());
   const std::vector<PixelSample> samples = gather(j, pixels);
-  // In chunks of a window keyframe's size.
+  // In chunks of a window keyframe's size, each a slice the caller admits.
   auto evaluate = [&](const Eigen::Isometry3d& T) {
     constexpr size_t kChunk = 2048;
     Linearization sum;
     std::vector<PixelSample> chunk;
-    for (size_t begin = 0; begin < samples.size(); begin += kChunk) {
+    for (size_t begin = 0; begin < samples.size() && !out.stopped; begin += kChunk) {
+      if (stop && stop()) {
+        out.stopped = true;
+        break;
+      }
       chunk.assign(samples.begin() + static_cast<std::ptrdiff_t>(begin),
                    samples.begin() + static_cast<std::ptrdiff_t>(std::min(samples.size(), begin + kChunk)));
       const Linearization l = linearizeSamples(j, T, maps, chunk, nullptr);
@@ -154,7 +158,7 @@ PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& f
          out.photo_to);
   charge(a.counts.photo_implicit, b.counts.photo_implicit, p.lambda_photo_implicit * photo_gate, out.photo_from,
          out.photo_to);
-  out.passed = out.pixels > 0 && out.depth_to <= out.depth_from && out.photo_to <= out.photo_from;
+  out.passed = !out.stopped && out.pixels > 0 && out.depth_to <= out.depth_from && out.photo_to <= out.photo_from;
   return out;
 }
 

@@ -20,6 +20,7 @@ TsdfMap::TsdfMap(const TsdfMap& other)
       truncation_(other.truncation_),
       inv_voxel_size_(other.inv_voxel_size_),
       inv_block_size_(other.inv_block_size_),
+      stale_end_(other.stale_end_),
       keys_(other.keys_),
       block_revisions_(other.block_revisions_),
       revision_(other.revision_),
@@ -58,6 +59,7 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   const int32_t index = static_cast<int32_t>(keys_.size());
   keys_.push_back(key);
   if (keys_.size() > chunks_.size() * kChunkBlocks) chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
+  if (static_cast<size_t>(index) < stale_end_) block(static_cast<size_t>(index)) = VoxelBlock{};
   block_revisions_.push_back(0);
   const uint64_t packed = pack(key) + 1;
   const size_t mask = table_keys_.size() - 1;
@@ -237,23 +239,58 @@ std::vector<int32_t> TsdfMap::changedSince(uint64_t revision) const {
 
 void TsdfMap::clear() {
   chunks_.clear();
+  stale_end_ = 0;
   keys_.clear();
   block_revisions_.clear();
   ++revision_;
   rehash(1 << 12);
 }
 
-TsdfMap copyBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world) {
-  TsdfMap out(map.params());
-  const BlockKey lo = map.blockOf(box_world.min()), hi = map.blockOf(box_world.max());
-  for (int z = lo.z(); z <= hi.z(); ++z) {
-    for (int y = lo.y(); y <= hi.y(); ++y) {
-      for (int x = lo.x(); x <= hi.x(); ++x) {
-        const int32_t b = map.find(BlockKey(x, y, z));
-        if (b >= 0) out.block(static_cast<size_t>(out.findOrAllocate(BlockKey(x, y, z)))) = map.block(static_cast<size_t>(b));
+void TsdfMap::assignBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world) {
+  params_ = map.params_;
+  voxel_size_ = map.voxel_size_;
+  truncation_ = map.truncation_;
+  inv_voxel_size_ = map.inv_voxel_size_;
+  inv_block_size_ = map.inv_block_size_;
+  keys_.clear();
+  block_revisions_.clear();
+  revision_ = 0;
+  std::fill(table_keys_.begin(), table_keys_.end(), 0);
+  std::fill(table_values_.begin(), table_values_.end(), -1);
+  // Chunks stay: every block allocated below is overwritten whole, and
+  // the slots after them are cleared when allocated later.
+  stale_end_ = 0;
+  // An empty box copies nothing; one beyond 100 km is cut there (block
+  // coordinates stay ints).
+  constexpr float kWorld = 1e5f;
+  if (!box_world.isEmpty() && box_world.min().allFinite() && box_world.max().allFinite()) {
+    const BlockKey lo = map.blockOf(box_world.min().cwiseMax(-kWorld)), hi = map.blockOf(box_world.max().cwiseMin(kWorld));
+    const double cells = (hi - lo + BlockKey::Ones()).cast<double>().prod();
+    if (cells > static_cast<double>(map.blockCount())) {
+      // Fewer blocks than cells: visit the blocks.
+      for (size_t b = 0; b < map.blockCount(); ++b) {
+        const BlockKey& k = map.key(b);
+        if ((k.array() >= lo.array()).all() && (k.array() <= hi.array()).all()) {
+          block(static_cast<size_t>(findOrAllocate(k))) = map.block(b);
+        }
+      }
+    } else {
+      for (int z = lo.z(); z <= hi.z(); ++z) {
+        for (int y = lo.y(); y <= hi.y(); ++y) {
+          for (int x = lo.x(); x <= hi.x(); ++x) {
+            const int32_t b = map.find(BlockKey(x, y, z));
+            if (b >= 0) block(static_cast<size_t>(findOrAllocate(BlockKey(x, y, z)))) = map.block(static_cast<size_t>(b));
+          }
+        }
       }
     }
   }
+  stale_end_ = chunks_.size() * kChunkBlocks;
+}
+
+TsdfMap copyBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world) {
+  TsdfMap out(map.params());
+  out.assignBlocks(map, box_world);
   return out;
 }
 

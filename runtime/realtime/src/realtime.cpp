@@ -113,6 +113,10 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   // Pose feedback: keyframes (images shared, not copied) to the feedback
   // thread, keyframe corrections back.
   SpscRing<FeedbackInput> keyframes(16);
+  // Map copies the feedback thread is done with, back to the frontend's
+  // thread for reuse (the ring orders the solver's reads before the next
+  // copy's writes).
+  SpscRing<std::shared_ptr<const alg::TsdfMap>> snapshots_done(16);
   // ROI refinement: jobs from the frontend to each worker, outcomes back
   // (one ring per direction and worker: single producer, single consumer).
   // Outcomes and pose corrections are applied by the frontend between
@@ -282,6 +286,9 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       // The feedback thread solves on a copy of the map around the window,
       // made after a frame with the slack for it (a keyframe's own frame
       // seldom has it): the keyframes wait for it here.
+      for (std::shared_ptr<const alg::TsdfMap> done; snapshots_done.tryPop(done);) {
+        frontend.reuseFeedbackSnapshot(done.get());
+      }
       for (alg::WindowKeyframe& kf : frontend.takeFeedbackKeyframes()) feedback_backlog.push_back(std::move(kf));
       if (!feedback_backlog.empty()) {
         const FeedbackCounters fc = frontend.feedbackCounters();
@@ -341,6 +348,10 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       const uint64_t seen = keyframes_pushed.load(std::memory_order_acquire);
       bool added = false;
       while (keyframes.tryPop(in)) {
+        if (snapshot && snapshot != in.map) {
+          // Done with the previous copy: no queued keyframe refers to it.
+          if (!snapshots_done.tryPush(std::move(snapshot))) snapshot.reset();
+        }
         snapshot = std::move(in.map);
         maps.tsdf = snapshot.get();
         solver.add(std::move(in.keyframe), maps);

@@ -396,6 +396,12 @@ TEST_F(FeedbackTest, DenseCheckTakesAMoveTowardTheTruthAndRefusesOneAway) {
   EXPECT_LT(at_far.counts.depth_explicit * 20, at_near.counts.depth_explicit);
   EXPECT_LT(at_far.depth_cost, at_near.depth_cost);
 
+  int asked = 0;
+  const PoseWindow::Verification cut = window.verify(0, near, truth, maps(), [&] { return ++asked > 2; });
+  EXPECT_TRUE(cut.stopped);
+  EXPECT_FALSE(cut.passed) << "not checked to the end";
+  EXPECT_EQ(asked, 3) << "asked before each chunk";
+
   p.verify_stride = 0;  // no check: nothing to pass
   PoseWindow unchecked(p);
   unchecked.add(keyframe(14), maps());

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
@@ -272,6 +273,51 @@ TEST(TsdfMap, BlocksNeverMoveAndCopiesAreDeep) {
   EXPECT_EQ(copy.find(BlockKey(299, -299, 598)), map.find(BlockKey(299, -299, 598)));
   copy = map;
   EXPECT_FLOAT_EQ(copy.block(static_cast<size_t>(copy.find(BlockKey(0, 0, 0)))).geo[5].sdf_m, -0.01f);
+}
+
+TEST(TsdfMap, AssignedBlocksReuseMemoryAndLeaveNothingStale) {
+  // A copy of the blocks in a box, made again into the same map: the same
+  // blocks as copyBlocks, no new memory, and a block allocated later in a
+  // slot an earlier copy used starts empty.
+  TsdfMap map(params(0.02));
+  for (int i = 0; i < 40; ++i) {
+    VoxelBlock& b = map.block(static_cast<size_t>(map.findOrAllocate(BlockKey(i, 0, 0))));
+    b.geo[7].sdf_m = 0.001f * static_cast<float>(i);
+    b.geo[7].weight = 2.0f;
+  }
+  const float bs = map.blockSize();
+  const Eigen::AlignedBox3f all(Eigen::Vector3f(0.5f * bs, 0, 0), Eigen::Vector3f(39.5f * bs, 0.5f * bs, 0.5f * bs));
+  const Eigen::AlignedBox3f some(Eigen::Vector3f(10.5f * bs, 0, 0), Eigen::Vector3f(19.5f * bs, 0.5f * bs, 0.5f * bs));
+  TsdfMap copy(params(0.02));
+  copy.assignBlocks(map, all);
+  EXPECT_EQ(copy.blockCount(), 40u);
+  const size_t bytes = copy.memory().bytes;
+  copy.assignBlocks(map, some);
+  const TsdfMap expected = copyBlocks(map, some);
+  ASSERT_EQ(copy.blockCount(), expected.blockCount());
+  EXPECT_EQ(copy.blockCount(), 10u);
+  for (int i = 10; i < 20; ++i) {
+    const int32_t b = copy.find(BlockKey(i, 0, 0));
+    ASSERT_GE(b, 0) << i;
+    EXPECT_FLOAT_EQ(copy.block(static_cast<size_t>(b)).geo[7].sdf_m, 0.001f * static_cast<float>(i));
+  }
+  EXPECT_LT(copy.find(BlockKey(5, 0, 0)), 0);
+  EXPECT_LE(copy.memory().bytes, bytes) << "no new chunks";
+  EXPECT_GE(copy.memory().bytes, 40 * sizeof(VoxelBlock)) << "the chunks stay";
+  // Slot 10 held block (10, 0, 0)'s voxels in the first copy's layout; a
+  // new block there starts empty.
+  const int32_t fresh = copy.findOrAllocate(BlockKey(100, 0, 0));
+  EXPECT_EQ(copy.block(static_cast<size_t>(fresh)).geo[7].weight, 0.0f);
+  EXPECT_EQ(copy.block(static_cast<size_t>(fresh)).geo[7].sdf_m, VoxelBlock{}.geo[7].sdf_m);
+
+  // An empty box copies nothing; a huge one (more cells than blocks) every block.
+  copy.assignBlocks(map, Eigen::AlignedBox3f());
+  EXPECT_EQ(copy.blockCount(), 0u);
+  const float inf = std::numeric_limits<float>::infinity();
+  copy.assignBlocks(map, Eigen::AlignedBox3f(Eigen::Vector3f::Constant(-1e4f), Eigen::Vector3f::Constant(1e4f)));
+  EXPECT_EQ(copy.blockCount(), 40u);
+  copy.assignBlocks(map, Eigen::AlignedBox3f(Eigen::Vector3f::Constant(-inf), Eigen::Vector3f::Constant(inf)));
+  EXPECT_EQ(copy.blockCount(), 0u) << "not finite: nothing";
 }
 
 TEST(TsdfPatch, FusesLikeAnObservationAndRejectsBadValues) {

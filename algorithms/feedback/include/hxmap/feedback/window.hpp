@@ -115,10 +115,13 @@ class PoseWindow {
   struct Verification {
     int pixels = 0;
     double depth_from = 0, depth_to = 0, photo_from = 0, photo_to = 0;
-    bool passed = false;  ///< neither cost rose
+    bool passed = false;   ///< neither cost rose
+    bool stopped = false;  ///< `stop` ended it (not passed)
   };
-  Verification verify(size_t j, const Eigen::Isometry3d& from, const Eigen::Isometry3d& to,
-                      const FeedbackMaps& maps) const;
+  /// `stop` (optional) is asked before each chunk of a window keyframe's
+  /// size, as the solve asks before each cast.
+  Verification verify(size_t j, const Eigen::Isometry3d& from, const Eigen::Isometry3d& to, const FeedbackMaps& maps,
+                      const std::function<bool()>& stop = {}) const;
 
   /// Keyframe j's residual factor at pose T on `pixels` (u, v at the
   /// image level): 0.5 sum w r^2, and the Gauss-Newton H and b (d cost /

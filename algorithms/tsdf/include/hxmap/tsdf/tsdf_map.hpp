@@ -174,6 +174,10 @@ class TsdfMap {
 
   MapMemory memory() const;
   void clear();
+  /// Makes this map what copyBlocks(map, box_world) returns (same
+  /// parameters), in this map's block memory: no allocation while it has
+  /// held as many blocks before.
+  void assignBlocks(const TsdfMap& map, const Eigen::AlignedBox3f& box_world);
 
  private:
   static uint64_t pack(const BlockKey& k) { return packBlockKey(k); }
@@ -194,6 +198,9 @@ class TsdfMap {
   // memory in use. A chunk is 384 KiB; at most one is partly used.
   static constexpr size_t kChunkBlocks = 16;
   std::vector<std::unique_ptr<VoxelBlock[]>> chunks_;
+  /// Block slots from blockCount() up to this hold another map's voxels
+  /// (left by assignBlocks): findOrAllocate clears them.
+  size_t stale_end_ = 0;
   std::vector<BlockKey> keys_;
   std::vector<uint64_t> block_revisions_;  ///< revision of each block's last write
   uint64_t revision_ = 0;

@@ -246,6 +246,9 @@ class Frontend {
   /// frontend; readers work on copies). Between frames, on the frontend's
   /// thread; timed in feedbackCounters().
   std::shared_ptr<const alg::TsdfMap> feedbackSnapshot();
+  /// A copy the solver is done with (handed back through a ring, so its
+  /// reads happened before): its memory makes the next copy.
+  void reuseFeedbackSnapshot(const alg::TsdfMap* done);
 
   /// The ROI refinement jobs made since the last call (paper 3.3).
   std::vector<RefineJob> takeRefineJobs();
@@ -404,6 +407,12 @@ class Frontend {
     Eigen::AlignedBox3f box_world;  ///< what it sees, widened by the truncation band
   };
   std::deque<KeptKeyframe> kept_;  ///< newest last
+  /// Map copies made for the feedback thread (a few, reused once given back).
+  struct SnapshotSlot {
+    std::shared_ptr<alg::TsdfMap> map;
+    bool in_use = false;
+  };
+  std::vector<SnapshotSlot> snapshot_slots_;
   std::vector<alg::WindowKeyframe> feedback_out_;
   std::deque<uint32_t> reintegrate_queue_;
   FeedbackCounters feedback_counters_;
