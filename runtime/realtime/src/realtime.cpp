@@ -108,6 +108,18 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   LatestSlot<Arrival> sensor_slot;
   std::atomic<uint64_t> published{0};
   std::atomic<bool> sensor_done{false}, frontend_done{false}, workers_stop{false};
+  // A background thread reads a counter, then looks for work, then sleeps
+  // until the counter moves. The stop flag is read after the counter: the
+  // shutdown sets it before bumping every counter, so a thread that read
+  // the bumped value sees the flag here and does not sleep (read before
+  // the counter, the flag could be missed and the thread sleep forever).
+  auto waitUnlessStopping = [&workers_stop](std::atomic<uint64_t>& counter, uint64_t seen) {
+    if (!workers_stop.load()) counter.wait(seen, std::memory_order_acquire);
+  };
+  // The same for the scheduler's frame epoch (wakeAll bumps it).
+  auto waitForFrameEndUnlessStopping = [&workers_stop, &sched](uint64_t epoch) {
+    if (!workers_stop.load()) sched.waitForFrameEnd(epoch);
+  };
   int64_t first_arrival_ns = 0, last_arrival_ns = 0;  // sensor thread until joined
   std::string source_error;                            // sensor thread until joined
   // Pose feedback: keyframes (images shared, not copied) to the feedback
@@ -359,7 +371,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         added = true;
       }
       if (!added) {
-        keyframes_pushed.wait(seen, std::memory_order_acquire);  // no polling
+        waitUnlessStopping(keyframes_pushed, seen);  // no polling
         continue;
       }
       const int effort = sched.feedbackEffort();
@@ -394,7 +406,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
             shed = true;
             return true;
           }
-          sched.waitForFrameEnd(epoch);
+          waitForFrameEndUnlessStopping(epoch);
         }
         return true;
       };
@@ -433,7 +445,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         const uint64_t seen = loop_pushed.load(std::memory_order_acquire);
         while (loop_keyframes.tryPop(kf)) closer->add(withOwnImages(std::move(kf)));
         if (!closer->busy()) {
-          loop_pushed.wait(seen, std::memory_order_acquire);  // no polling
+          waitUnlessStopping(loop_pushed, seen);  // no polling
           continue;
         }
         if (!in_job) {
@@ -446,7 +458,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         const Verdict v = sched.admitSlice(ticket, now_ns());
         if (v == Verdict::kWait) {
           loop_waits.fetch_add(1);
-          sched.waitForFrameEnd(epoch);
+          waitForFrameEndUnlessStopping(epoch);
           continue;
         }
         if (v == Verdict::kShed) {
@@ -498,7 +510,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
       const uint64_t epoch = sched.frameEpoch();
       const Verdict v = sched.admitSlice(ticket, now_ns());
       if (v == Verdict::kWait) {
-        sched.waitForFrameEnd(epoch);
+        waitForFrameEndUnlessStopping(epoch);
         continue;
       }
       if (v == Verdict::kShed) {
@@ -549,7 +561,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
             jobs_in_flight[static_cast<size_t>(w)].fetch_sub(1);
             continue;
           }
-          jobs_pushed.wait(seen, std::memory_order_acquire);  // no polling
+          waitUnlessStopping(jobs_pushed, seen);  // no polling
         }
         return;
       }
@@ -561,7 +573,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
         const uint64_t epoch = sched.frameEpoch();
         const Verdict v = sched.admitSlice(job, now_ns());
         if (v == Verdict::kWait) {
-          sched.waitForFrameEnd(epoch);  // slack changes when a frame ends
+          waitForFrameEndUnlessStopping(epoch);  // slack changes when a frame ends
           continue;
         }
         if (v == Verdict::kShed || done == options.burn_slices_per_job) {
