@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <memory>
 #include <thread>
 
 #include "hxmap/dataset/synthetic.hpp"
@@ -35,13 +36,27 @@ class PoseFeedbackLoop : public ::testing::Test {
     FeedbackCounters counters;
     FeedbackTally tally;
   };
-  Run run(bool feedback, const Eigen::Matrix<double, 6, 1>& bias) const {
+  // Pose feedback alone (no quality scoring, no refinement), with the
+  // odometry biased by `bias` (per frame).
+  static FrontendParams feedbackParams(bool feedback, const Eigen::Matrix<double, 6, 1>& bias) {
     FrontendParams p;
     p.quality_enabled = false;
     p.refine_enabled = false;
     p.feedback.enabled = feedback;
     p.odometry_bias = bias;
     p.feedback.image_level = 0;  // the camera is small already (320x240)
+    return p;
+  }
+  // A frontend started at the true first pose that has mapped the first
+  // `frames` frames.
+  std::unique_ptr<Frontend> mapped(const FrontendParams& p, size_t frames) const {
+    auto fe = std::make_unique<Frontend>(cam_, p);
+    fe->setInitialPose(truth_.front().T_world_cam);
+    for (size_t i = 0; i < frames; ++i) fe->process(frames_[i]);
+    return fe;
+  }
+  Run run(bool feedback, const Eigen::Matrix<double, 6, 1>& bias) const {
+    const FrontendParams p = feedbackParams(feedback, bias);
     Frontend fe(cam_, p);
     fe.setInitialPose(truth_.front().T_world_cam);
     SerialFeedback fb(p.feedback);
@@ -94,14 +109,9 @@ TEST_F(PoseFeedbackLoop, SolveTimeLeavesOutTheSchedulersWaits) {
   // slices: the tally's solve time is the solver's own. Not a timing
   // assertion: sleep_for waits at least its duration, so a slow machine
   // only widens the margin; it fails only when the waits are counted.
-  FrontendParams p;
-  p.quality_enabled = false;
-  p.refine_enabled = false;
-  p.feedback.enabled = true;
-  p.feedback.image_level = 0;
-  Frontend fe(cam_, p);
-  fe.setInitialPose(truth_.front().T_world_cam);
-  for (size_t i = 0; i < 40; ++i) fe.process(frames_[i]);
+  const FrontendParams p = feedbackParams(true, Eigen::Matrix<double, 6, 1>::Zero());
+  const std::unique_ptr<Frontend> mapped_fe = mapped(p, 40);
+  Frontend& fe = *mapped_fe;
   FeedbackSolver solver(p.feedback);
   const alg::FeedbackMaps maps{&fe.map(), {}};
   for (auto& kf : fe.takeFeedbackKeyframes()) solver.add(std::move(kf), maps);
@@ -126,15 +136,11 @@ TEST_F(PoseFeedbackLoop, ASolveOnTheSnapshotIsTheSolveOnTheMapAndTheMapMovesOnWi
   // solved on it finds the same poses as on the frontend's map (the two
   // windows share the keyframes' images: neither may write into them), and
   // the frontend writes on while the copy stays as it was.
-  FrontendParams p;
-  p.quality_enabled = false;
-  p.refine_enabled = false;
-  p.feedback.enabled = true;
-  p.feedback.image_level = 0;
-  p.odometry_bias << 0.0004, -0.0006, 0.0002, 0.0008, 0.0004, -0.0006;  // something to correct
-  Frontend fe(cam_, p);
-  fe.setInitialPose(truth_.front().T_world_cam);
-  for (size_t i = 0; i < 40; ++i) fe.process(frames_[i]);
+  Eigen::Matrix<double, 6, 1> bias;
+  bias << 0.0004, -0.0006, 0.0002, 0.0008, 0.0004, -0.0006;  // something to correct
+  const FrontendParams p = feedbackParams(true, bias);
+  const std::unique_ptr<Frontend> mapped_fe = mapped(p, 40);
+  Frontend& fe = *mapped_fe;
   const std::shared_ptr<const alg::TsdfMap> snapshot = fe.feedbackSnapshot();
   EXPECT_EQ(fe.feedbackCounters().snapshots, 1u);
   ASSERT_GT(snapshot->blockCount(), 100u);

@@ -8,24 +8,29 @@
 // (PlaybackSource) or a live camera (runtime/camera), whose next() blocks
 // until the device delivers.
 //
-// Threads (created once per run, named, joined before return):
-//   hx-sensor     pulls frames from the source and publishes each into a
-//                 LatestSlot; an unread older frame is replaced and counted
-//                 as dropped.
-//   hx-frontend   the only thread touching the Frontend (and so the map).
+// The run is a chain of stages, each a named thread that owns its input
+// ring (runtime/realtime/src/stages.hpp), created and joined by runRealtime:
+//   hx-sensor     pulls frames from the source and publishes each into the
+//                 frontend's inbox (the newest frame only: an unread older
+//                 frame is replaced and counted as dropped).
+//   hx-frontend   the only thread touching the Frontend (and so the map);
+//                 hands ROI jobs to the refinement workers and keyframes to
+//                 pose feedback and loop closure.
 //   hx-refine-N   refinement workers: the frontend's ROI jobs (paper 3.3),
 //                 each slice (field setup, a few training iterations, the
-//                 write-back) admitted by the scheduler first; or, with
-//                 burn_slice_ms, a synthetic CPU load for scheduler tests.
-//   hx-feedback   pose feedback (paper 3.4): takes keyframes from an
-//                 SpscRing into the sliding window and solves it in
-//                 scheduler-admitted slices, reading the map under its
-//                 shared lock (the frontend holds it exclusively only while
-//                 it writes: fusion, patches, re-integration).
+//                 write-back) admitted by the scheduler first.
+//   hx-feedback   pose feedback (paper 3.4): keyframes join the sliding
+//                 window, solved in scheduler-admitted slices on a copy of
+//                 the map around the window made by the frontend's thread.
+//   hx-loop       loop closure, when configured: the loop closer's steps in
+//                 scheduler-admitted slices.
+//   hx-burn-N     with burn_slice_ms (instead of the refinement workers): a
+//                 synthetic CPU load for watching the scheduler shed work.
 // Results flow back to the frontend through rings too (TSDF patches from
-// each worker, keyframe corrections from feedback) and are applied between
-// frames, so the frontend stays the map's only writer; keyframes that
-// moved are re-integrated after a frame when the slack allows.
+// each worker, keyframe corrections from feedback, loop corrections with
+// their rebuilt maps) and are applied between frames, so the frontend
+// stays the map's only writer; keyframes that moved are re-integrated
+// after a frame when the slack allows.
 // The calling thread prints the status line and watches `stop` (set by a
 // signal handler): on stop the sensor stops publishing, the frontend finishes
 // the frame in hand, workers cancel their jobs, and everything is joined, so

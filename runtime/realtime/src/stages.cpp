@@ -1,0 +1,524 @@
+#include "stages.hpp"
+
+#include <pthread.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+namespace hxmap::rt::stages {
+
+void nameThisThread(const char* name) { pthread_setname_np(pthread_self(), name); }
+
+void niceThisThread(const char* name, int nice) {
+  if (nice <= 0) return;
+  const auto tid = static_cast<id_t>(::syscall(SYS_gettid));
+  if (::setpriority(PRIO_PROCESS, tid, nice) != 0) {
+    spdlog::warn("{}: could not set nice {}: {}", name, nice, std::strerror(errno));
+  }
+}
+
+// --------------------------------------------------------------- sensor
+
+void SensorStage::start(const std::atomic<bool>& stop, const std::atomic<bool>& go) {
+  thread_ = std::thread([this, &stop, &go] {
+    nameThisThread("hx-sensor");
+    go.wait(false);
+    run(stop);
+    out_.close();
+  });
+}
+
+void SensorStage::run(const std::atomic<bool>& stop) {
+  for (int64_t i = 0; !stop.load(); ++i) {
+    auto next = source_.next(stop);
+    if (!next) {
+      error = next.message();
+      spdlog::error("{}", error);
+      return;
+    }
+    if (!next->has_value()) return;  // the end of the stream, or stopped
+    Arrival a{std::move(**next), ctx_.nowNs(), i};
+    if (i == 0) first_arrival_ns = a.arrival_ns;
+    last_arrival_ns = a.arrival_ns;
+    ctx_.sched.frameArrived(a.arrival_ns);
+    if (out_.publish(std::move(a))) {
+      ctx_.sched.framesDropped(1);
+      spdlog::debug("frame {} replaced an unprocessed one (dropped)", i);
+    }
+  }
+}
+
+// ----------------------------------------------------------- refinement
+
+bool RefineWorker::offer(RefineJob&& job) {
+  in_flight_.fetch_add(1);
+  if (!jobs_.tryPush(std::move(job))) {
+    in_flight_.fetch_sub(1);
+    return false;
+  }
+  bell_.ring();
+  return true;
+}
+
+void RefineWorker::run() {
+  const std::string name = fmt::format("hx-refine-{}", index_);
+  nameThisThread(name.c_str());
+  niceThisThread(name.c_str(), nice_);
+  RefineJob job;
+  while (!ctx_.stopping.load()) {
+    const uint32_t seen = bell_.read();
+    if (jobs_.tryPop(job)) {
+      runJob(job);
+      job = RefineJob{};  // release the snapshot and images now
+      in_flight_.fetch_sub(1);
+      continue;
+    }
+    bell_.wait(seen, ctx_.stopping);  // no polling
+  }
+}
+
+void RefineWorker::runJob(RefineJob& job) {
+  Scheduler& sched = ctx_.sched;
+  JobTicket ticket{"refine setup", 10.0};
+  sched.jobSubmitted(ticket, ctx_.nowNs());
+  std::unique_ptr<alg::RoiRefiner> refiner;
+  RefineOutcome outcome;
+  outcome.job_id = job.id;
+  outcome.map_epoch = job.map_epoch;
+  while (!ctx_.stopping.load()) {
+    // Each phase's slices have their own cost model: a setup slice costs
+    // several iterations, and one cost for both would keep iterations out
+    // of slack they fit in.
+    const bool training = refiner && !refiner->finished() && outcome.train_ms < params_.time_budget_ms;
+    ticket.kind = !refiner ? "refine setup" : training ? "refine" : "refine write-back";
+    const uint64_t epoch = sched.frameEpoch();
+    const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
+    if (v == Verdict::kWait) {
+      ctx_.waitForFrameEnd(epoch);
+      continue;
+    }
+    if (v == Verdict::kShed) {
+      counters_.shed.fetch_add(1);
+      return;
+    }
+    const int64_t s0 = ctx_.nowNs();
+    enum { kSetup, kTrain, kWriteBack } phase = kTrain;
+    if (!refiner) {
+      refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, params_);
+      phase = kSetup;
+    } else if (training) {
+      refiner->iterate(std::max(1, params_.slice_iterations));
+    } else {
+      outcome.out_of_time = !refiner->finished();
+      outcome.result = refiner->result();
+      if (refiner->iterations() > 0) {
+        outcome.surface = std::make_shared<alg::FieldSurface>(refiner->field(), 3.0f, &refiner->seen());
+      }
+      phase = kWriteBack;
+    }
+    const int64_t s1 = ctx_.nowNs();
+    const double ms = static_cast<double>(s1 - s0) * 1e-6;
+    sched.sliceFinished(ticket, ms);
+    counters_.slices.fetch_add(1);
+    if (ctx_.trace) ctx_.trace->add({ticket.kind.c_str(), "background", s0, s1 - s0, 3 + index_, -1, -1});
+    (phase == kSetup ? outcome.setup_ms : phase == kTrain ? outcome.train_ms : outcome.result_ms) += ms;
+    if (phase == kWriteBack) {
+      sched.jobFinished(ticket);
+      counters_.done.fetch_add(1);
+      if (!outcomes_.tryPush(std::move(outcome))) counters_.outcomes_full.fetch_add(1);
+      return;
+    }
+  }
+}
+
+RefinePool::RefinePool(RunContext& ctx, int workers, const alg::ImplicitParams& params, int nice) {
+  for (int w = 0; w < workers; ++w) workers_.push_back(std::make_unique<RefineWorker>(ctx, w, params, nice, counters));
+}
+
+void RefinePool::start() {
+  for (auto& w : workers_) w->start();
+}
+
+void RefinePool::join() {
+  for (auto& w : workers_) w->join();
+}
+
+int RefinePool::idleWorkers() const {
+  return static_cast<int>(std::count_if(workers_.begin(), workers_.end(), [](const auto& w) { return w->idle(); }));
+}
+
+void RefinePool::submit(std::vector<RefineJob> jobs) {
+  const size_t n = workers_.size();
+  for (RefineJob& job : jobs) {
+    bool pushed = false;
+    for (size_t k = 0; k < n && !pushed; ++k) {
+      const size_t w = (next_ + k) % n;
+      pushed = workers_[w]->offer(std::move(job));
+      if (pushed) next_ = w + 1;
+    }
+    ++(pushed ? submitted : rejected);
+  }
+}
+
+// ------------------------------------------------------------ burn load
+
+BurnLoad::BurnLoad(RunContext& ctx, int threads, double slice_ms, int slices_per_job, int nice, int first_lane)
+    : ctx_(ctx),
+      threads_n_(slice_ms > 0 ? static_cast<size_t>(std::max(0, threads)) : 0),
+      slice_ms_(slice_ms),
+      slices_per_job_(slices_per_job),
+      nice_(nice),
+      first_lane_(first_lane) {}
+
+void BurnLoad::start() {
+  for (size_t i = 0; i < threads_n_; ++i) threads_.emplace_back([this, i] { run(static_cast<int>(i)); });
+}
+
+void BurnLoad::join() {
+  for (auto& t : threads_) t.join();
+}
+
+void BurnLoad::run(int index) {
+  const std::string name = fmt::format("hx-burn-{}", index);
+  nameThisThread(name.c_str());
+  niceThisThread(name.c_str(), nice_);
+  Scheduler& sched = ctx_.sched;
+  JobTicket job{"burn", slice_ms_};
+  int done = 0;
+  sched.jobSubmitted(job, ctx_.nowNs());
+  volatile double sink = 0;
+  while (!ctx_.stopping.load()) {
+    const uint64_t epoch = sched.frameEpoch();
+    const Verdict v = sched.admitSlice(job, ctx_.nowNs());
+    if (v == Verdict::kWait) {
+      ctx_.waitForFrameEnd(epoch);  // slack changes when a frame ends
+      continue;
+    }
+    if (v == Verdict::kShed || done == slices_per_job_) {
+      if (v != Verdict::kShed) sched.jobFinished(job);
+      job = JobTicket{"burn", slice_ms_};
+      done = 0;
+      sched.jobSubmitted(job, ctx_.nowNs());
+      continue;
+    }
+    const int64_t s0 = ctx_.nowNs(), s_end = s0 + static_cast<int64_t>(slice_ms_ * 1e6);
+    while (ctx_.nowNs() < s_end) {  // burn the CPU
+      for (int k = 0; k < 1000; ++k) sink = sink + std::sqrt(static_cast<double>(k) + sink * 1e-9);
+    }
+    const int64_t s1 = ctx_.nowNs();
+    sched.sliceFinished(job, static_cast<double>(s1 - s0) * 1e-6);
+    slices_.fetch_add(1);
+    ++done;
+    if (ctx_.trace) ctx_.trace->add({"burn", "background", s0, s1 - s0, first_lane_ + index, -1, -1});
+  }
+  (void)sink;
+}
+
+// ------------------------------------------------------------- feedback
+
+FeedbackStage::FeedbackStage(RunContext& ctx, const Frontend& frontend, int max_effort, int nice, int lane)
+    : ctx_(ctx),
+      frontend_(frontend),
+      params_(frontend.params().feedback),
+      max_effort_(std::max(1, max_effort)),
+      nice_(nice),
+      lane_(lane) {}
+
+void FeedbackStage::offer(std::vector<alg::WindowKeyframe> keyframes, Frontend& frontend) {
+  for (std::shared_ptr<const alg::TsdfMap> done; snapshots_done_.tryPop(done);)
+    frontend.reuseFeedbackSnapshot(done.get());
+  for (alg::WindowKeyframe& kf : keyframes) backlog_.push_back(std::move(kf));
+  if (backlog_.empty()) return;
+  const FeedbackCounters fc = frontend.feedbackCounters();
+  const double copy_ms = fc.snapshots > 0 ? fc.snapshot_ms / static_cast<double>(fc.snapshots) : 4.0;
+  if (ctx_.sched.slackMs(ctx_.nowNs()) <= 1.5 * copy_ms) return;
+  const std::shared_ptr<const alg::TsdfMap> snapshot = frontend.feedbackSnapshot();
+  for (alg::WindowKeyframe& kf : backlog_) {
+    if (!keyframes_.tryPush({std::move(kf), snapshot})) ++keyframes_full;
+  }
+  backlog_.clear();
+  bell_.ring();
+}
+
+void FeedbackStage::run() {
+  nameThisThread("hx-feedback");
+  niceThisThread("hx-feedback", nice_);
+  Scheduler& sched = ctx_.sched;
+  FeedbackSolver solver(params_);
+  std::shared_ptr<const alg::TsdfMap> snapshot;
+  alg::FeedbackMaps maps;
+  // The refined regions' fields (shared: a field lives while a solve uses it).
+  std::vector<std::shared_ptr<const alg::ImplicitSurface>> surfaces;
+  FeedbackInput in;
+  while (!ctx_.stopping.load()) {
+    const uint32_t seen = bell_.read();
+    bool added = false;
+    while (keyframes_.tryPop(in)) {
+      if (snapshot && snapshot != in.map) {
+        // Done with the previous copy: no queued keyframe refers to it.
+        if (!snapshots_done_.tryPush(std::move(snapshot))) snapshot.reset();
+      }
+      snapshot = std::move(in.map);
+      maps.tsdf = snapshot.get();
+      solver.add(std::move(in.keyframe), maps);
+      keyframes_seen.fetch_add(1);
+      added = true;
+    }
+    if (!added) {
+      bell_.wait(seen, ctx_.stopping);  // no polling
+      continue;
+    }
+    const int effort = sched.feedbackEffort();
+    if (effort <= 0) {
+      windows_skipped.fetch_add(1);
+      continue;
+    }
+    const int iterations =
+        std::max(1, (params_.iterations * std::min(effort, max_effort_) + max_effort_ - 1) / max_effort_);
+    JobTicket ticket{"feedback", 2.0};
+    sched.jobSubmitted(ticket, ctx_.nowNs());
+    bool shed = false, in_slice = false;
+    int64_t slice_start = 0;
+    auto endSlice = [&] {
+      if (!in_slice) return;
+      const int64_t t = ctx_.nowNs();
+      sched.sliceFinished(ticket, static_cast<double>(t - slice_start) * 1e-6);
+      if (ctx_.trace) ctx_.trace->add({"feedback", "background", slice_start, t - slice_start, lane_, -1, -1});
+      in_slice = false;
+    };
+    // Called by the solver between its steps: true stops the solve.
+    auto stopSolve = [&] {
+      endSlice();
+      while (!ctx_.stopping.load()) {
+        const uint64_t epoch = sched.frameEpoch();
+        const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
+        if (v == Verdict::kRun) {
+          in_slice = true;
+          slice_start = ctx_.nowNs();
+          return false;
+        }
+        if (v == Verdict::kShed) {
+          shed = true;
+          return true;
+        }
+        ctx_.waitForFrameEnd(epoch);
+      }
+      return true;
+    };
+    surfaces = frontend_.implicitSurfaces();
+    maps.implicit.clear();
+    for (const auto& sf : surfaces) maps.implicit.push_back(sf.get());
+    const std::vector<KeyframeCorrection> out = solver.solve(maps, stopSolve, iterations);
+    endSlice();
+    if (shed) {
+      windows_shed.fetch_add(1);
+    } else {
+      sched.jobFinished(ticket);
+    }
+    for (const KeyframeCorrection& c : out) {
+      if (!corrections_.tryPush(c)) corrections_full.fetch_add(1);
+    }
+  }
+  while (keyframes_.tryPop(in)) keyframes_seen.fetch_add(1);
+  tally = solver.tally();
+}
+
+// --------------------------------------------------------- loop closure
+
+LoopStage::LoopStage(RunContext& ctx, std::unique_ptr<LoopCloser> closer, const ParallelFor& parallel, int nice,
+                     int lane)
+    : ctx_(ctx), closer_(std::move(closer)), enabled_(closer_ != nullptr), nice_(nice), lane_(lane) {
+  if (closer_) closer_->setParallel(parallel ? parallel : ParallelFor(serialFor));
+}
+
+void LoopStage::start() {
+  if (closer_) thread_ = std::thread([this] { run(); });
+}
+
+void LoopStage::join() {
+  bell_.ring();
+  if (thread_.joinable()) thread_.join();
+}
+
+void LoopStage::offer(std::vector<LoopKeyframe> keyframes) {
+  for (LoopKeyframe& kf : keyframes) backlog_.push_back(std::move(kf));
+  bool sent = false;
+  while (!backlog_.empty() && keyframes_.tryPush(std::move(backlog_.front()))) {
+    backlog_.pop_front();
+    sent = true;
+  }
+  if (sent) bell_.ring();
+}
+
+void LoopStage::run() {
+  nameThisThread("hx-loop");
+  niceThisThread("hx-loop", nice_);
+  Scheduler& sched = ctx_.sched;
+  JobTicket ticket;
+  bool in_job = false;
+  LoopKeyframe kf;
+  while (!ctx_.stopping.load()) {
+    const uint32_t seen = bell_.read();
+    while (keyframes_.tryPop(kf)) closer_->add(withOwnImages(std::move(kf)));
+    if (!closer_->busy()) {
+      bell_.wait(seen, ctx_.stopping);  // no polling
+      continue;
+    }
+    if (!in_job) {
+      ticket = JobTicket{"loop", 5.0};
+      sched.jobSubmitted(ticket, ctx_.nowNs());
+      in_job = true;
+    }
+    ticket.kind = closer_->rebuilding() ? "loop rebuild" : "loop";
+    const uint64_t epoch = sched.frameEpoch();
+    const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
+    if (v == Verdict::kWait) {
+      waits.fetch_add(1);
+      ctx_.waitForFrameEnd(epoch);
+      continue;
+    }
+    if (v == Verdict::kShed) {
+      // What cannot be given up (a keyframe's place in the graph with its
+      // odometry check, a rebuild once the graph has moved) runs one step
+      // now, then waits on under a new ticket: at most one such step per
+      // shed period (waiting only, or taking keyframes in unchecked, left
+      // the synthetic loop 2-5x worse in real time; the unchecked path is
+      // kept for a queue beyond max_pending, LoopCloser::shed).
+      in_job = false;
+      if (closer_->shed()) continue;
+      forced.fetch_add(1);
+    }
+    const int64_t s0 = ctx_.nowNs();
+    closer_->step();
+    const int64_t s1 = ctx_.nowNs();
+    sched.sliceFinished(ticket, static_cast<double>(s1 - s0) * 1e-6);
+    slices.fetch_add(1);
+    if (ctx_.trace) ctx_.trace->add({ticket.kind.c_str(), "background", s0, s1 - s0, lane_, -1, -1});
+    if (std::optional<LoopCorrection> c = closer_->takeCorrection()) unsent_.push_back(std::move(*c));
+    while (!unsent_.empty() && corrections_.tryPush(std::move(unsent_.front()))) unsent_.pop_front();
+    if (in_job && !closer_->busy()) {
+      sched.jobFinished(ticket);
+      in_job = false;
+    }
+  }
+}
+
+void LoopStage::finish(Frontend& frontend) {
+  if (!closer_) return;
+  LoopKeyframe kf;
+  while (keyframes_.tryPop(kf)) closer_->add(std::move(kf));
+  for (LoopKeyframe& k : backlog_) closer_->add(std::move(k));
+  for (LoopKeyframe& k : frontend.takeLoopKeyframes()) closer_->add(std::move(k));
+  LoopCorrection loop;
+  while (corrections_.tryPop(loop)) frontend.applyLoopCorrection(loop);
+  for (LoopCorrection& c : unsent_) frontend.applyLoopCorrection(c);
+  while (closer_->step()) {
+    if (std::optional<LoopCorrection> c = closer_->takeCorrection()) frontend.applyLoopCorrection(*c);
+  }
+  frontend.attachLoopCloser(std::move(closer_));
+}
+
+// ------------------------------------------------------------- frontend
+
+FrontendStage::FrontendStage(RunContext& ctx, Frontend& frontend, const RealtimeOptions& options, RefinePool& refine,
+                             FeedbackStage& feedback, LoopStage& loop)
+    : ctx_(ctx), frontend_(frontend), options_(options), refine_(refine), feedback_(feedback), loop_(loop) {
+  ready_.store(!options.warm_up);
+}
+
+void FrontendStage::run() {
+  nameThisThread("hx-frontend");
+  if (options_.warm_up) {
+    struct Ready {  // released however the warm-up ends
+      std::atomic<bool>& flag;
+      ~Ready() {
+        flag.store(true);
+        flag.notify_all();
+      }
+    } ready{ready_};
+    frontend_.warmUp();
+  }
+  for (Arrival a; inbox_.take(a);) {
+    applyBackgroundResults();
+    FrameResult r = process(a);
+    handOn();
+    const FrameResult& kept = results.emplace_back(std::move(r));
+    frames_done_.fetch_add(1, std::memory_order_relaxed);
+    reintegrateIntoSlack(kept);
+  }
+  done_.store(true);
+}
+
+void FrontendStage::applyOutcomes() {
+  refine_.drainOutcomes([this](const RefineOutcome& outcome) {
+    const alg::PatchStats ps = frontend_.applyRefinement(outcome);
+    patches_applied += ps.applied > 0;
+    voxels_written += ps.applied;
+  });
+}
+
+// Between frames: what the background stages sent back.
+void FrontendStage::applyBackgroundResults() {
+  applyOutcomes();
+  for (KeyframeCorrection c; feedback_.takeCorrection(c);) corrections_applied += frontend_.applyKeyframeCorrection(c);
+  for (LoopCorrection loop; loop_.takeCorrection(loop); loop = LoopCorrection{}) {  // the old map goes here
+    const int64_t t = ctx_.nowNs();
+    frontend_.applyLoopCorrection(loop);
+    loop_apply_ms += static_cast<double>(ctx_.nowNs() - t) * 1e-6;
+    ++loop_applied;
+  }
+}
+
+FrameResult FrontendStage::process(const Arrival& a) {
+  // A keyframe makes refinement jobs only for idle workers: a job queued
+  // behind others ran seconds later with stale ROIs, or found the rings
+  // full (24-28 of 33 jobs rejected in 25 FPS playback of the quality
+  // room); left to a later keyframe, the ROI is chosen afresh.
+  frontend_.setRefineBudget(refine_.idleWorkers());
+  Scheduler& sched = ctx_.sched;
+  const int64_t start = ctx_.nowNs();
+  sched.frameStarted(start, a.arrival_ns);
+  FrameResult r = frontend_.process(a.frame);
+  const int64_t end = ctx_.nowNs();
+  sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
+                      static_cast<double>(end - start) * 1e-6);
+  latency_ms.push_back(static_cast<double>(end - a.arrival_ns) * 1e-6);
+  frontend_ms.push_back(static_cast<double>(end - start) * 1e-6);
+  if (ctx_.trace) traceFrameStages(*ctx_.trace, r, start, 2, a.index);
+  if (options_.on_frame) {
+    const SchedulerCounters c = sched.counters();
+    options_.on_frame(r, frontend_,
+                      RunCounters{c.frames_dropped, c.deadline_misses, refine_.counters.done.load(),
+                                  refine_.counters.shed.load(), latency_ms.back()});
+  }
+  return r;
+}
+
+// After a frame: its ROI jobs to the workers, its keyframes to pose
+// feedback and loop closure.
+void FrontendStage::handOn() {
+  refine_.submit(frontend_.takeRefineJobs());
+  feedback_.offer(frontend_.takeFeedbackKeyframes(), frontend_);
+  loop_.offer(frontend_.takeLoopKeyframes());
+}
+
+// A keyframe that feedback moved is re-integrated after a frame, one per
+// frame and only into predicted slack (it costs about two integrations).
+void FrontendStage::reintegrateIntoSlack(const FrameResult& r) {
+  if (frontend_.reintegrationsPending() == 0) return;
+  const FeedbackCounters fc = frontend_.feedbackCounters();
+  const double cost_ms = fc.reintegrations > 0 ? fc.reintegrate_ms / static_cast<double>(fc.reintegrations)
+                                               : 2.0 * std::max(1.0, r.stage_ms[kIntegrate]);
+  if (ctx_.sched.slackMs(ctx_.nowNs()) > 1.5 * cost_ms) frontend_.reintegratePending(1);
+}
+
+}  // namespace hxmap::rt::stages
