@@ -221,183 +221,48 @@ std::string loopClosureSummary(const Frontend& frontend) {
       l.keyframes_rebuilt, l.rebuild_ms, stored, static_cast<double>(bytes) / (1 << 20), l.stale_refinements);
 }
 
-}  // namespace
+// ---------------------------------------------------------------- run
+//
+// runCommand: open the input -> build the pipeline -> run it (real time
+// through the runtime's stages, or offline frame by frame) -> write the
+// outputs -> summarize. Each step returns what the next one needs.
 
-int runCommand(const RunOptions& o) {
-  auto config = loadAndPrint(o.config);
-  if (!config) {
-    spdlog::error("{}", config.message());
-    return 2;
-  }
-  HxmapConfig& c = *config;
-  if (!o.camera.empty() && !o.dataset.empty()) {
-    spdlog::error("run: give --dataset or --camera, not both");
-    return 2;
-  }
-  if (o.camera.empty() && o.dataset.empty()) {
-    spdlog::error("run: give --dataset FOLDER or --camera SPEC");
-    return 2;
-  }
-  if (!o.trace.empty()) {
-    // Checked now, not after the run it would describe.
-    const fs::path dir = fs::path(o.trace).parent_path().empty() ? fs::path(".") : fs::path(o.trace).parent_path();
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec) || ::access(dir.c_str(), W_OK) != 0 || fs::is_directory(o.trace, ec)) {
-      spdlog::error("--trace {}: cannot write there (no such folder, not writable, or a folder)", o.trace);
-      return 2;
-    }
-  }
-  // A live camera: opened first, so a missing device fails before anything is written.
-  std::unique_ptr<CameraSource> camera;
-  if (!o.camera.empty()) {
-    auto spec = parseCameraSpec(o.camera);
-    if (!spec) {
-      spdlog::error("{}", spec.message());
-      return 2;
-    }
-    CameraSourceOptions co;
-    co.calibration = rigCalibration(c);
-    co.max_sync_gap_s = c.rig.max_sync_gap_s;
-    co.fps = c.rig.fps;
-    co.reconnect_timeout_s = c.rig.reconnect_timeout_s;
-    co.lost_timeout_s = c.rig.lost_timeout_s;
-    auto opened = openCameraSource(*spec, co);
-    if (!opened) {
-      spdlog::error("{}", opened.message());
-      return 2;
-    }
-    camera = std::move(*opened);
-    const auto& k = camera->camera();
-    spdlog::info("camera {}: {}x{} at {:.0f} FPS, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f}", camera->name(), k.width,
-                 k.height, camera->fps(), k.fx, k.fy, k.cx, k.cy);
-  }
-  drv::DatasetOptions dopt;
-  dopt.skip_bad = o.skip_bad || c.dataset.skip_bad_frames;
-  dopt.undistort = c.dataset.undistort;
-  dopt.max_association_s = c.dataset.max_association_s;
-  dopt.depth_scale = c.camera.depth_scale;
-  alg::PinholeCamera user_cam{c.camera.fx,
-                              c.camera.fy,
-                              c.camera.cx,
-                              c.camera.cy,
-                              c.camera.width,
-                              c.camera.height,
-                              {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
-  // Intrinsics are never a silent guess: the configuration's stand in for a
-  // dataset without its own only when the file gave them; a named preset
-  // wins over the dataset's own.
-  if (!o.camera_preset.empty()) {
-    dopt.camera = drv::cameraPreset(o.camera_preset);
-    dopt.camera_origin = "--camera-preset " + o.camera_preset;
-    dopt.force_camera = true;
-  } else if (c.camera.intrinsics_given) {
-    dopt.camera = user_cam;
-    dopt.force_camera = c.camera.override_dataset;
-  }
-  std::unique_ptr<drv::Dataset> dataset;  // null on a camera run
-  if (!camera) {
-    auto opened = drv::Dataset::open(o.dataset, dopt);
-    if (!opened) {
-      spdlog::error("{}", opened.message());
-      return 2;
-    }
-    dataset = std::move(*opened);
-    const drv::Dataset& ds = *dataset;
-    const auto& k = ds.camera();
-    spdlog::info(
-        "dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground truth: {}",
-        ds.dir(), ds.size(), k.width, k.height, k.fx, k.fy, k.cx, k.cy, ds.cameraSource(),
-        ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
-  }
-  const alg::PinholeCamera cam = camera ? camera->camera() : dataset->camera();
-  const Trajectory no_ground_truth;
-  const Trajectory& ground_truth = dataset ? dataset->groundTruth() : no_ground_truth;
-  const bool realtime = o.realtime || camera;
-  if (o.fuse_ground_truth && (realtime || ground_truth.empty())) {
-    spdlog::error("--fuse-ground-truth: needs an offline run of a dataset with ground truth{}",
-                  realtime ? " (not --realtime or a camera)" : fmt::format(" ({} has none)", o.dataset));
-    return 2;
-  }
-  std::error_code ec;
-  fs::create_directories(o.out_dir, ec);
-  if (ec) {
-    spdlog::error("{}: cannot create the output folder: {}", o.out_dir, ec.message());
-    return 2;
-  }
+Error fail(std::string message) { return Error{std::move(message)}; }
 
-  const ParallelFor parallel = makeParallelFor(c.runtime.threads);
-  FrontendParams fp = frontendParams(c);
-  Frontend frontend(cam, fp, parallel);
+// What a run reads: a live camera, or a dataset and the frames of it to map.
+struct RunInput {
+  std::unique_ptr<CameraSource> camera;   ///< null on a dataset run
+  std::unique_ptr<drv::Dataset> dataset;  ///< null on a camera run
+  drv::DatasetOptions options;
+  std::vector<size_t> frames;  ///< the dataset's frames to map
+  int max_frames = 0;          ///< 0: all
+  alg::PinholeCamera cam;
+  Trajectory no_ground_truth;
+  const Trajectory& groundTruth() const { return dataset ? dataset->groundTruth() : no_ground_truth; }
+};
+
+// The run's components.
+struct RunPipeline {
+  ParallelFor parallel;
+  FrontendParams params;
+  std::unique_ptr<Frontend> frontend;
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
-  if (o.dds || c.dds.enabled) {
-    auto params = publisherParams(c);
-    if (!params) {
-      spdlog::error("{}", params.message());
-      return 2;
-    }
-    if (camera) params->stamp_offset_ns = realtimeMinusMonotonicNs();
-    auto started = dds::Publisher::start(*params);
-    if (!started) {
-      spdlog::error("{}", started.message());
-      return 2;
-    }
-    publisher = std::move(*started);
-    spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix,
-                 params->domain_id);
-  }
-#else
-  if (o.dds || c.dds.enabled) {
-    spdlog::error(
-        "dds: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
-        "configure and build again)");
-    return 2;
-  }
 #endif
+  bool realtime = false;
+};
 
-  // Frames to process (of a dataset).
-  std::vector<size_t> frames;
-  const int max_frames = o.max_frames >= 0 ? o.max_frames : c.dataset.max_frames;
-  for (size_t i = static_cast<size_t>(c.dataset.first_frame); dataset && i < dataset->size(); i += c.dataset.stride) {
-    if (max_frames > 0 && frames.size() >= static_cast<size_t>(max_frames)) break;
-    frames.push_back(i);
+// What the run did, for the outputs and the summary.
+struct RunRecord {
+  explicit RunRecord(const RunOptions& o) : tracing(!o.trace.empty()) {
+    trace.nameThread(1, "frontend");     // offline run
+    trace.nameThread(2, "hx-frontend");  // --realtime
   }
-  if (dataset && frames.empty()) {
-    spdlog::error("{}: no frames to process (first_frame {} of {})", dataset->dir(), c.dataset.first_frame,
-                  dataset->size());
-    return 2;
+  int64_t sinceStart(std::chrono::steady_clock::time_point t) const {
+    return std::chrono::duration_cast<std::chrono::nanoseconds>(t - start).count();
   }
-  if (camera) {
-    // REP 103: the map is z-up. The first camera pose (optical: z forward,
-    // x right, y down) is taken as level, looking along the map's x axis.
-    frontend.setInitialPose(alg::levelOpticalInZUp());
-  }
-  if (dataset && c.dataset.initial_pose == "ground_truth" && !ground_truth.empty()) {
-    Eigen::Isometry3d T0;
-    if (alg::interpolatePose(ground_truth, dataset->stamp(frames[0]), 200'000'000, T0)) {
-      frontend.setInitialPose(T0);
-      spdlog::info("first pose taken from the ground truth (the map is in the ground truth's frame)");
-    }
-  }
-
-  std::array<std::vector<double>, kStageCount> stage_ms;
-  std::vector<double> total_ms;
-  size_t bad_frames = 0, frames_without_truth = 0;
-  std::string first_error, realtime_report;
-  RefineTally refine;
-  RunCounters end_counters;  // for the last health message
-  bool stopped = false;
-  StopSignals signals;
-  const auto t_start = std::chrono::steady_clock::now();
-  TraceRecorder trace;
-  trace.nameThread(1, "frontend");     // offline run
-  trace.nameThread(2, "hx-frontend");  // --realtime
-  auto since_start = [&](std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration_cast<std::chrono::nanoseconds>(t - t_start).count();
-  };
-  TrackingLog tracking_log;
-  Trajectory live;  // each frame's pose as it was when the frame was processed (published live)
-  auto tally = [&](const FrameResult& r) {
+  // A processed frame: logged, its live pose and its stage times kept.
+  double add(const FrameResult& r) {
     tracking_log.add(r);
     live.push_back({r.stamp_ns, r.T_world_cam});
     double sum = 0;
@@ -408,269 +273,494 @@ int runCommand(const RunOptions& o) {
     }
     total_ms.push_back(sum);
     return sum;
-  };
-  if (realtime) {
-    // A dataset's frames are decoded up front (a camera delivers decoded
-    // frames), then played at their recorded rate through the runtime's
-    // threads; a camera's frames go through them as they come.
-    const double mib = static_cast<double>(frames.size()) * cam.width * cam.height * 7 / (1 << 20);
-    if (mib > 8192) {
-      spdlog::error("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames",
-                    frames.size(), mib);
-      return 2;
-    }
-    std::vector<RgbdFrame> loaded;
-    Progress loading("loading", frames.size());
-    for (size_t k = 0; k < frames.size() && !g_stop.load(); ++k) {
-      auto frame = dataset->load(frames[k]);
-      if (!frame) {
-        if (!dopt.skip_bad) {
-          // As offline: what comes before the bad frame is still mapped
-          // and written, and the run ends with 1.
-          first_error = frame.message() + " (use --skip-bad to skip unreadable frames)";
-          spdlog::error("{}; playing the {} frames before it", first_error, loaded.size());
-          break;
-        }
-        ++bad_frames;
-        spdlog::warn("skipped frame {}: {}", frames[k], frame.message());
-      } else {
-        loaded.push_back(std::move(*frame));
-      }
-      loading.update(k + 1);
-    }
-    RealtimeOptions ro;
-    ro.fps = o.fps;
-    ro.burn_slice_ms = o.burn_ms;
-    ro.refine_workers = c.runtime.refine_workers;
-    ro.background_nice = c.runtime.background_nice;
-    ro.loop_parallel = makeParallelFor(c.runtime.threads);
-    ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
-    ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
-#ifdef HXMAP_HAVE_DDS
-    if (publisher) {
-      ro.on_frame = [&](const FrameResult& r, const Frontend& f, const RunCounters& counters) {
-        publisher->onFrame(r, f.map(), f.trajectory(), counters);
-      };
-    }
-#endif
-    // Under systemd (Type=notify): ready once the frames are loaded (the
-    // camera streams), then a watchdog heartbeat from the status loop while
-    // the run is healthy.
-    sdNotify(camera ? fmt::format("READY=1\nSTATUS=mapping from {}", camera->name())
-                    : fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
-    const bool watchdog = sdWatchdogUsec() > 0;
-    PlaybackSource playback(loaded, o.fps);
-    // A dataset's frames are already limited above; a camera's here.
-    FrameLimit limited_camera(camera ? static_cast<FrameSource&>(*camera) : playback,
-                              camera ? static_cast<size_t>(std::max(0, max_frames)) : 0);
-    FrameSource& source = camera ? static_cast<FrameSource&>(limited_camera) : playback;
-    const RealtimeStats rs = runRealtime(source, frontend, ro, g_stop, o.trace.empty() ? nullptr : &trace, [&] {
-      if (watchdog) sdNotify("WATCHDOG=1");
-    });
-    if (!rs.source_error.empty()) first_error = rs.source_error;
-    sdNotify("STOPPING=1\nSTATUS=writing outputs");
-    for (const auto& r : rs.results) tally(r);
-    realtime_report = rs.report;
-    stopped = rs.stopped_early;
-    end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed,
-                    rs.refine_jobs_shed, 0};
   }
+
+  const std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  bool tracing;
+  TraceRecorder trace;
+  TrackingLog tracking_log;
+  Trajectory live;  ///< each frame's pose as it was when the frame was processed (published live)
+  std::array<std::vector<double>, kStageCount> stage_ms;
+  std::vector<double> total_ms;
+  size_t bad_frames = 0, frames_without_truth = 0;
+  std::string first_error, realtime_report, feedback_text;
+  RefineTally refine;
+  RunCounters end_counters;  ///< for the last health message
+  bool stopped = false;
+  double wall_s = 0;
+};
+
+// The options that need no input: checked before anything is opened.
+Status checkRunOptions(const RunOptions& o) {
+  if (!o.camera.empty() && !o.dataset.empty()) return fail("run: give --dataset or --camera, not both");
+  if (o.camera.empty() && o.dataset.empty()) return fail("run: give --dataset FOLDER or --camera SPEC");
+  if (!o.trace.empty()) {
+    // Checked now, not after the run it would describe.
+    const fs::path dir = fs::path(o.trace).parent_path().empty() ? fs::path(".") : fs::path(o.trace).parent_path();
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec) || ::access(dir.c_str(), W_OK) != 0 || fs::is_directory(o.trace, ec)) {
+      return fail(fmt::format("--trace {}: cannot write there (no such folder, not writable, or a folder)", o.trace));
+    }
+  }
+  return {};
+}
+
+// Opens the camera (first, so a missing device fails before anything is
+// written) or the dataset, and lists the frames to map.
+Expected<RunInput> openInput(const RunOptions& o, const HxmapConfig& c) {
+  RunInput in;
+  if (!o.camera.empty()) {
+    auto spec = parseCameraSpec(o.camera);
+    if (!spec) return spec.error();
+    CameraSourceOptions co;
+    co.calibration = rigCalibration(c);
+    co.max_sync_gap_s = c.rig.max_sync_gap_s;
+    co.fps = c.rig.fps;
+    co.reconnect_timeout_s = c.rig.reconnect_timeout_s;
+    co.lost_timeout_s = c.rig.lost_timeout_s;
+    auto opened = openCameraSource(*spec, co);
+    if (!opened) return opened.error();
+    in.camera = std::move(*opened);
+    const auto& k = in.camera->camera();
+    spdlog::info("camera {}: {}x{} at {:.0f} FPS, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f}", in.camera->name(), k.width,
+                 k.height, in.camera->fps(), k.fx, k.fy, k.cx, k.cy);
+  }
+  drv::DatasetOptions& dopt = in.options;
+  dopt.skip_bad = o.skip_bad || c.dataset.skip_bad_frames;
+  dopt.undistort = c.dataset.undistort;
+  dopt.max_association_s = c.dataset.max_association_s;
+  dopt.depth_scale = c.camera.depth_scale;
+  // Intrinsics are never a silent guess: the configuration's stand in for a
+  // dataset without its own only when the file gave them; a named preset
+  // wins over the dataset's own.
+  if (!o.camera_preset.empty()) {
+    dopt.camera = drv::cameraPreset(o.camera_preset);
+    dopt.camera_origin = "--camera-preset " + o.camera_preset;
+    dopt.force_camera = true;
+  } else if (c.camera.intrinsics_given) {
+    dopt.camera = alg::PinholeCamera{c.camera.fx,
+                                     c.camera.fy,
+                                     c.camera.cx,
+                                     c.camera.cy,
+                                     c.camera.width,
+                                     c.camera.height,
+                                     {c.camera.k1, c.camera.k2, c.camera.p1, c.camera.p2, c.camera.k3}};
+    dopt.force_camera = c.camera.override_dataset;
+  }
+  in.max_frames = o.max_frames >= 0 ? o.max_frames : c.dataset.max_frames;
+  if (in.camera) {
+    in.cam = in.camera->camera();
+    return in;
+  }
+  auto opened = drv::Dataset::open(o.dataset, dopt);
+  if (!opened) return opened.error();
+  in.dataset = std::move(*opened);
+  const drv::Dataset& ds = *in.dataset;
+  in.cam = ds.camera();
+  spdlog::info(
+      "dataset {}: {} frames, {}x{}, fx {:.1f} fy {:.1f} cx {:.1f} cy {:.1f} (intrinsics from {}), ground "
+      "truth: {}",
+      ds.dir(), ds.size(), in.cam.width, in.cam.height, in.cam.fx, in.cam.fy, in.cam.cx, in.cam.cy, ds.cameraSource(),
+      ds.groundTruth().empty() ? "none" : fmt::format("{} poses", ds.groundTruth().size()));
+  for (size_t i = static_cast<size_t>(c.dataset.first_frame); i < ds.size(); i += c.dataset.stride) {
+    if (in.max_frames > 0 && in.frames.size() >= static_cast<size_t>(in.max_frames)) break;
+    in.frames.push_back(i);
+  }
+  if (in.frames.empty()) {
+    return fail(
+        fmt::format("{}: no frames to process (first_frame {} of {})", ds.dir(), c.dataset.first_frame, ds.size()));
+  }
+  return in;
+}
+
+// The frontend at its first pose, the publisher when asked for, the output folder.
+Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, const RunInput& in) {
+  RunPipeline p;
+  p.realtime = o.realtime || in.camera;
+  if (o.fuse_ground_truth && (p.realtime || in.groundTruth().empty())) {
+    return fail(fmt::format("--fuse-ground-truth: needs an offline run of a dataset with ground truth{}",
+                            p.realtime ? " (not --realtime or a camera)" : fmt::format(" ({} has none)", o.dataset)));
+  }
+  std::error_code ec;
+  fs::create_directories(o.out_dir, ec);
+  if (ec) return fail(fmt::format("{}: cannot create the output folder: {}", o.out_dir, ec.message()));
+  p.parallel = makeParallelFor(c.runtime.threads);
+  p.params = frontendParams(c);
+  p.frontend = std::make_unique<Frontend>(in.cam, p.params, p.parallel);
+#ifdef HXMAP_HAVE_DDS
+  if (o.dds || c.dds.enabled) {
+    auto params = publisherParams(c);
+    if (!params) return params.error();
+    if (in.camera) params->stamp_offset_ns = realtimeMinusMonotonicNs();
+    auto started = dds::Publisher::start(*params);
+    if (!started) return started.error();
+    p.publisher = std::move(*started);
+    spdlog::info("DDS: publishing rt/{}/{{pose,trajectory,map,health}} in domain {}", c.dds.topic_prefix,
+                 params->domain_id);
+  }
+#else
+  if (o.dds || c.dds.enabled) {
+    return fail(
+        "dds: this hxmap was built without Cyclone DDS (apt install cyclonedds-dev cyclonedds-tools, then "
+        "configure and build again)");
+  }
+#endif
+  if (in.camera) {
+    // REP 103: the map is z-up. The first camera pose (optical: z forward,
+    // x right, y down) is taken as level, looking along the map's x axis.
+    p.frontend->setInitialPose(alg::levelOpticalInZUp());
+  }
+  if (in.dataset && c.dataset.initial_pose == "ground_truth" && !in.groundTruth().empty()) {
+    Eigen::Isometry3d T0;
+    if (alg::interpolatePose(in.groundTruth(), in.dataset->stamp(in.frames[0]), 200'000'000, T0)) {
+      p.frontend->setInitialPose(T0);
+      spdlog::info("first pose taken from the ground truth (the map is in the ground truth's frame)");
+    }
+  }
+  return p;
+}
+
+// Real time: a dataset's frames are decoded up front (a camera delivers
+// decoded frames), then played at their recorded rate through the
+// runtime's stages; a camera's frames go through them as they come.
+Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipeline& p, RunRecord& rec) {
+  const double mib = static_cast<double>(in.frames.size()) * in.cam.width * in.cam.height * 7 / (1 << 20);
+  if (mib > 8192) {
+    return fail(fmt::format("--realtime loads every frame first: {} frames need about {:.0f} MiB; use --max-frames",
+                            in.frames.size(), mib));
+  }
+  std::vector<RgbdFrame> loaded;
+  Progress loading("loading", in.frames.size());
+  for (size_t k = 0; k < in.frames.size() && !g_stop.load(); ++k) {
+    auto frame = in.dataset->load(in.frames[k]);
+    if (!frame) {
+      if (!in.options.skip_bad) {
+        // As offline: what comes before the bad frame is still mapped
+        // and written, and the run ends with 1.
+        rec.first_error = frame.message() + " (use --skip-bad to skip unreadable frames)";
+        spdlog::error("{}; playing the {} frames before it", rec.first_error, loaded.size());
+        break;
+      }
+      ++rec.bad_frames;
+      spdlog::warn("skipped frame {}: {}", in.frames[k], frame.message());
+    } else {
+      loaded.push_back(std::move(*frame));
+    }
+    loading.update(k + 1);
+  }
+  RealtimeOptions ro;
+  ro.fps = o.fps;
+  ro.burn_slice_ms = o.burn_ms;
+  ro.refine_workers = c.runtime.refine_workers;
+  ro.background_nice = c.runtime.background_nice;
+  ro.loop_parallel = makeParallelFor(c.runtime.threads);
+  ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
+  ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+#ifdef HXMAP_HAVE_DDS
+  if (p.publisher) {
+    ro.on_frame = [&](const FrameResult& r, const Frontend& f, const RunCounters& counters) {
+      p.publisher->onFrame(r, f.map(), f.trajectory(), counters);
+    };
+  }
+#endif
+  // Under systemd (Type=notify): ready once the frames are loaded (the
+  // camera streams), then a watchdog heartbeat from the status loop while
+  // the run is healthy.
+  sdNotify(in.camera ? fmt::format("READY=1\nSTATUS=mapping from {}", in.camera->name())
+                     : fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
+  const bool watchdog = sdWatchdogUsec() > 0;
+  PlaybackSource playback(loaded, o.fps);
+  // A dataset's frames are already limited above; a camera's here.
+  FrameLimit limited_camera(in.camera ? static_cast<FrameSource&>(*in.camera) : playback,
+                            in.camera ? static_cast<size_t>(std::max(0, in.max_frames)) : 0);
+  FrameSource& source = in.camera ? static_cast<FrameSource&>(limited_camera) : playback;
+  const RealtimeStats rs = runRealtime(source, *p.frontend, ro, g_stop, rec.tracing ? &rec.trace : nullptr, [&] {
+    if (watchdog) sdNotify("WATCHDOG=1");
+  });
+  if (!rs.source_error.empty()) rec.first_error = rs.source_error;
+  sdNotify("STOPPING=1\nSTATUS=writing outputs");
+  for (const auto& r : rs.results) rec.add(r);
+  rec.realtime_report = rs.report;
+  rec.stopped = rs.stopped_early;
+  rec.end_counters = {rs.counters.frames_dropped, rs.counters.deadline_misses, rs.refine_jobs_completed,
+                      rs.refine_jobs_shed, 0};
+  return {};
+}
+
+// Offline: frame by frame. ROI jobs run to their iteration cap right after
+// the keyframe that made them, and the pose-feedback window is solved on
+// each new keyframe: no wall-clock budget, so the outputs do not depend on
+// the machine or its load (--realtime runs both on background threads).
+void runOffline(const RunOptions& o, RunInput& in, RunPipeline& p, RunRecord& rec) {
+  Frontend& frontend = *p.frontend;
   std::optional<SerialFeedback> feedback;
-  if (fp.feedback.enabled && !realtime) feedback.emplace(fp.feedback);
-  Progress progress("mapping", frames.size());
-  for (size_t k = 0; k < frames.size() && !realtime; ++k) {
+  if (p.params.feedback.enabled) feedback.emplace(p.params.feedback);
+  Progress progress("mapping", in.frames.size());
+  for (size_t k = 0; k < in.frames.size(); ++k) {
     if (g_stop.load()) {
-      stopped = true;
+      rec.stopped = true;
       break;
     }
     const auto t_load = std::chrono::steady_clock::now();
-    auto frame = dataset->load(frames[k]);
+    auto frame = in.dataset->load(in.frames[k]);
     if (!frame) {
-      if (!dopt.skip_bad) {
-        first_error = frame.message();
+      if (!in.options.skip_bad) {
+        rec.first_error = frame.message();
         spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
         break;
       }
-      ++bad_frames;
-      spdlog::warn("skipped frame {}: {}", frames[k], frame.message());
+      ++rec.bad_frames;
+      spdlog::warn("skipped frame {}: {}", in.frames[k], frame.message());
       continue;
     }
     const auto t_frame = std::chrono::steady_clock::now();
-    Eigen::Isometry3d T_truth;
-    const bool use_truth = o.fuse_ground_truth &&
-                           alg::interpolatePose(ground_truth,
-                                                frame->depth_stamp_ns > 0 ? frame->depth_stamp_ns : frame->stamp_ns,
-                                                200'000'000, T_truth);
-    if (o.fuse_ground_truth && !use_truth) ++frames_without_truth;
-    const FrameResult r = frontend.process(*frame, use_truth ? &T_truth : nullptr);
-    if (!o.trace.empty()) {
-      const int64_t seq = static_cast<int64_t>(frames[k]), t = since_start(t_frame);
-      trace.add({"load", "sensor", since_start(t_load), t - since_start(t_load), 1, seq, frame->stamp_ns});
-      traceFrameStages(trace, r, t, 1, seq);
+    Eigen::Isometry3d T_world_truth;
+    const int64_t stamp = frame->depth_stamp_ns > 0 ? frame->depth_stamp_ns : frame->stamp_ns;
+    const bool use_truth =
+        o.fuse_ground_truth && alg::interpolatePose(in.groundTruth(), stamp, 200'000'000, T_world_truth);
+    if (o.fuse_ground_truth && !use_truth) ++rec.frames_without_truth;
+    const FrameResult r = frontend.process(*frame, use_truth ? &T_world_truth : nullptr);
+    if (rec.tracing) {
+      const int64_t seq = static_cast<int64_t>(in.frames[k]), t = rec.sinceStart(t_frame);
+      rec.trace.add({"load", "sensor", rec.sinceStart(t_load), t - rec.sinceStart(t_load), 1, seq, frame->stamp_ns});
+      traceFrameStages(rec.trace, r, t, 1, seq);
     }
     spdlog::debug("frame {}: {} ({}) inliers {} within noise {:.0f} % rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]{}{}",
-                  frames[k], alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
+                  in.frames[k], alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
                   100 * r.consistent_ratio, r.rms_residual_m * 1000, r.T_world_cam.translation().x(),
                   r.T_world_cam.translation().y(), r.T_world_cam.translation().z(), r.failure.empty() ? "" : ": ",
                   r.failure);
     if (r.keyframe && !o.save_quality.empty()) {
       if (auto s = writeKeyframeQuality(o.save_quality, frontend, r.keyframe_id); !s) {
         spdlog::error("{}", s.message());
-        first_error = s.message();
+        rec.first_error = s.message();
         break;
       }
     }
-    // Offline, ROI jobs run to their iteration cap right after the keyframe
-    // that made them, and the pose-feedback window is solved on each new
-    // keyframe: no wall-clock budget, so the outputs do not depend on the
-    // machine or its load (--realtime runs both on background threads).
     for (const RefineJob& job : frontend.takeRefineJobs()) {
-      const RefineOutcome outcome = runRefineJob(job, fp.implicit, RefineBudget::kIterationsOnly);
+      const RefineOutcome outcome = runRefineJob(job, p.params.implicit, RefineBudget::kIterationsOnly);
       frontend.applyRefinement(outcome);
-      refine.add(outcome);
+      rec.refine.add(outcome);
     }
     if (feedback) feedback->step(frontend);
-    const double sum = tally(r);
+    const double sum = rec.add(r);
 #ifdef HXMAP_HAVE_DDS
-    if (publisher) {
-      publisher->onFrame(
+    if (p.publisher) {
+      p.publisher->onFrame(
           r, frontend.map(), frontend.trajectory(),
-          RunCounters{bad_frames, 0, refine.jobs, 0,
-                      since_start(std::chrono::steady_clock::now()) * 1e-6 - since_start(t_load) * 1e-6});
+          RunCounters{
+              rec.bad_frames, 0, rec.refine.jobs, 0,
+              static_cast<double>(rec.sinceStart(std::chrono::steady_clock::now()) - rec.sinceStart(t_load)) * 1e-6});
     }
 #endif
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
   }
-  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-#ifdef HXMAP_HAVE_DDS
-  std::string dds_text;
-  if (publisher) {
-    // Everything mapped goes out before the program ends (transient-local
-    // readers that join while it is still up get the whole map).
-    if (!realtime) end_counters = {bad_frames, 0, refine.jobs, 0, 0};
-    publisher->flush(frontend.map(), frontend.trajectory(), end_counters);
-    dds_text = publisherStatsText(publisher->stats(), wall_s);
-  }
-#endif
+  rec.end_counters = {rec.bad_frames, 0, rec.refine.jobs, 0, 0};
+  if (feedback) rec.feedback_text = feedback->tally().text(frontend.feedbackCounters(), p.params.feedback);
+}
 
-  // Outputs are written even after an error, so nothing mapped so far is lost.
-  const std::string traj_path = (fs::path(o.out_dir) / "trajectory.txt").string();
-  const std::string mesh_path = (fs::path(o.out_dir) / "mesh.ply").string();
-  int exit_code = first_error.empty() ? 0 : 1;
+// What went to disk; outputs are written even after an error, so nothing
+// mapped so far is lost.
+struct RunOutputs {
+  alg::TriangleMesh mesh;
   std::vector<std::string> written, not_written;
-  if (auto s = drv::writeTextFile(traj_path, drv::formatTumTrajectory(frontend.trajectory())); !s) {
-    spdlog::error("{}", s.message());
-    exit_code = 1;
-    not_written.push_back(traj_path);
-  } else {
-    written.push_back(traj_path);
-  }
-  if (fp.loop_closure.enabled) {
-    const std::string live_path = (fs::path(o.out_dir) / "trajectory_live.txt").string();
-    if (auto s = drv::writeTextFile(live_path, drv::formatTumTrajectory(live)); !s) {
-      spdlog::error("{}", s.message());
-      exit_code = 1;
-      not_written.push_back(live_path);
-    } else {
-      written.push_back(live_path);
-    }
-  }
-  const alg::TriangleMesh mesh = frontend.mesh(c.mesh);
-  if (auto s = drv::writePly(mesh_path, mesh); !s) {
-    spdlog::error("{}", s.message());
-    exit_code = 1;
-    not_written.push_back(mesh_path);
-  } else {
-    written.push_back(mesh_path);
-  }
+  bool ok() const { return not_written.empty(); }
+};
 
+RunOutputs writeOutputs(const RunOptions& o, const HxmapConfig& c, const RunPipeline& p, const RunRecord& rec) {
+  RunOutputs out;
+  auto write = [&](const std::string& name, const std::function<Status(const std::string&)>& writer) {
+    const std::string path = (fs::path(o.out_dir) / name).string();
+    if (auto s = writer(path); !s) {
+      spdlog::error("{}", s.message());
+      out.not_written.push_back(path);
+    } else {
+      out.written.push_back(path);
+    }
+  };
+  const Frontend& frontend = *p.frontend;
+  write("trajectory.txt", [&](const std::string& path) {
+    return drv::writeTextFile(path, drv::formatTumTrajectory(frontend.trajectory()));
+  });
+  if (p.params.loop_closure.enabled) {
+    write("trajectory_live.txt",
+          [&](const std::string& path) { return drv::writeTextFile(path, drv::formatTumTrajectory(rec.live)); });
+  }
+  out.mesh = frontend.mesh(c.mesh);
+  write("mesh.ply", [&](const std::string& path) { return drv::writePly(path, out.mesh); });
+  return out;
+}
+
+// The mesh against the dataset's ground-truth mesh, when it has one.
+std::string meshScoreText(const RunOptions& o, const HxmapConfig& c, const RunInput& in, const RunPipeline& p,
+                          const alg::TriangleMesh& mesh) {
+  const fs::path gt_mesh_path = in.dataset ? fs::path(in.dataset->dir()) / "gt_mesh.ply" : fs::path();
+  if (!in.dataset || o.no_mesh_eval || !fs::exists(gt_mesh_path)) return {};
+  auto gt_mesh = drv::readPly(gt_mesh_path.string());
+  if (!gt_mesh) {
+    spdlog::error("{}", gt_mesh.message());
+    return {};
+  }
+  spdlog::info("scoring the mesh against {} ...", gt_mesh_path.string());
+  // Ground truth counts as observed only from the poses of the frames
+  // this run processed (a --max-frames run sees less of the scene).
+  alg::ObservedBy observed{in.cam, {}, c.preprocess.max_depth_m, in.dataset->sensorGrazingCos()};
+  const int64_t first_ns = in.dataset->stamp(in.frames.front()) - 50'000'000;
+  const int64_t last_ns = in.dataset->stamp(in.frames.back()) + 50'000'000;
+  for (const auto& pose : in.groundTruth()) {
+    if (pose.stamp_ns >= first_ns && pose.stamp_ns <= last_ns) observed.poses.push_back(pose);
+  }
+  const auto mp = meshParams(c.eval);
+  return meshMetricsText(alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, p.parallel), mp, &observed);
+}
+
+std::string refineText(const Frontend& frontend, const RefineTally& refine) {
+  if (refine.jobs == 0) {
+    return frontend.refineJobsMade() > 0 ? fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade())
+                                         : std::string();
+  }
+  const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms), ps = percentiles(refine.setup_ms);
+  const auto pr = percentiles(refine.result_ms);
+  const double n = static_cast<double>(refine.jobs);
+  std::string text = fmt::format(
+      "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back ({} "
+      "completed where fusion had none)\n"
+      "  per job median {:.0f} ms (setup {:.1f} ms, write-back and field sampling {:.1f} ms), per iteration median "
+      "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
+      "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
+      refine.jobs, refine.converged, refine.out_of_time, refine.voxels, refine.completed, pj.median, ps.median,
+      pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+  size_t detail_bytes = 0;
+  const auto details = frontend.details();
+  for (const auto& d : details) detail_bytes += d->memoryBytes();
+  if (!details.empty()) {
+    text += fmt::format("  detail layer in the mesh: {} regions, {:.1f} MiB\n", details.size(),
+                        static_cast<double>(detail_bytes) / (1 << 20));
+  }
+  return text;
+}
+
+// The summary's figures: frames, tracking, map, timing, background work,
+// accuracy against the ground truth.
+std::string summarize(const RunOptions& o, const HxmapConfig& c, const RunInput& in, const RunPipeline& p,
+                      const RunRecord& rec, const RunOutputs& out) {
+  const Frontend& frontend = *p.frontend;
   std::string summary = "hxmap run summary\n=================\n";
-  summary += dataset ? fmt::format("dataset: {} ({} frames)\n", dataset->dir(), dataset->size())
-                     : fmt::format("camera: {}\n", camera->name());
-  summary += fmt::format("frames: processed {}, unreadable skipped {}, bad list or ground-truth lines skipped {}, "
-                         "keyframes {}\n",
-                         total_ms.size(), bad_frames, dataset ? dataset->skippedAtOpen().size() : 0,
-                         frontend.keyframes());
+  summary += in.dataset ? fmt::format("dataset: {} ({} frames)\n", in.dataset->dir(), in.dataset->size())
+                        : fmt::format("camera: {}\n", in.camera->name());
+  summary += fmt::format(
+      "frames: processed {}, unreadable skipped {}, bad list or ground-truth lines skipped {}, "
+      "keyframes {}\n",
+      rec.total_ms.size(), rec.bad_frames, in.dataset ? in.dataset->skippedAtOpen().size() : 0, frontend.keyframes());
   summary += trackingSummary(frontend);
   if (o.fuse_ground_truth) {
-    summary += fmt::format("fused at the ground-truth poses (--fuse-ground-truth); {} frames without one were tracked\n",
-                           frames_without_truth);
+    summary +=
+        fmt::format("fused at the ground-truth poses (--fuse-ground-truth); {} frames without one were tracked\n",
+                    rec.frames_without_truth);
   }
   const auto mem = frontend.map().memory();
   summary +=
       fmt::format("map: voxel {:.1f} cm, truncation {:.1f} cm, {} blocks, {:.1f} MiB; mesh {} vertices, {} triangles\n",
                   c.tsdf.voxel_size_m * 100, c.tsdf.truncation_m * 100, mem.blocks,
-                  static_cast<double>(mem.bytes) / (1 << 20), mesh.vertices.size(), mesh.triangles.size());
+                  static_cast<double>(mem.bytes) / (1 << 20), out.mesh.vertices.size(), out.mesh.triangles.size());
   summary += "timing, ms per frame    median      p90      max\n";
   for (int s = 0; s < kStageCount; ++s) {
-    const auto p = percentiles(stage_ms[s]);
+    const auto ps = percentiles(rec.stage_ms[s]);
     summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n",
-                           s == kKeyframe ? "keyframe (quality, ORB)" : stageName(s), p.median, p.p90, p.max);
+                           s == kKeyframe ? "keyframe (quality, ORB)" : stageName(s), ps.median, ps.p90, ps.max);
   }
-  const auto pt = percentiles(total_ms);
+  const auto pt = percentiles(rec.total_ms);
   summary += fmt::format("  {:<18} {:>8.2f} {:>8.2f} {:>8.2f}\n", "frontend total", pt.median, pt.p90, pt.max);
-  if (realtime) {
-    summary += realtime_report;
+  if (p.realtime) {
+    summary += rec.realtime_report;
   } else {
     summary += fmt::format("throughput: {:.1f} frames/s over {:.1f} s wall (image loading included, {} threads)\n",
-                           static_cast<double>(total_ms.size()) / wall_s, wall_s,
+                           static_cast<double>(rec.total_ms.size()) / rec.wall_s, rec.wall_s,
                            c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
   }
-  if (feedback) summary += feedback->tally().text(frontend.feedbackCounters(), fp.feedback);
-  if (fp.loop_closure.enabled) summary += loopClosureSummary(frontend);
-  if (!ground_truth.empty()) {
-    summary += trajectoryMetricsText(frontend.trajectory(), ground_truth, c.eval.rpe_delta_s);
+  summary += rec.feedback_text;
+  if (p.params.loop_closure.enabled) summary += loopClosureSummary(frontend);
+  if (!in.groundTruth().empty()) {
+    summary += trajectoryMetricsText(frontend.trajectory(), in.groundTruth(), c.eval.rpe_delta_s);
     if (frontend.loopClosureCounters().applied > 0) {
-      summary += "as published live (trajectory_live.txt):\n" + trajectoryMetricsText(live, ground_truth, c.eval.rpe_delta_s);
+      summary += "as published live (trajectory_live.txt):\n" +
+                 trajectoryMetricsText(rec.live, in.groundTruth(), c.eval.rpe_delta_s);
     }
   }
-  const fs::path gt_mesh_path = dataset ? fs::path(dataset->dir()) / "gt_mesh.ply" : fs::path();
-  if (dataset && !o.no_mesh_eval && fs::exists(gt_mesh_path)) {
-    auto gt_mesh = drv::readPly(gt_mesh_path.string());
-    if (!gt_mesh) {
-      spdlog::error("{}", gt_mesh.message());
-    } else {
-      spdlog::info("scoring the mesh against {} ...", gt_mesh_path.string());
-      // Ground truth counts as observed only from the poses of the frames
-      // this run processed (a --max-frames run sees less of the scene).
-      alg::ObservedBy observed{cam, {}, c.preprocess.max_depth_m, dataset->sensorGrazingCos()};
-      const int64_t first_ns = dataset->stamp(frames.front()) - 50'000'000;
-      const int64_t last_ns = dataset->stamp(frames.back()) + 50'000'000;
-      for (const auto& p : ground_truth) {
-        if (p.stamp_ns >= first_ns && p.stamp_ns <= last_ns) observed.poses.push_back(p);
-      }
-      const auto mp = meshParams(c.eval);
-      const auto m = alg::computeMeshMetrics(mesh, *gt_mesh, mp, &observed, parallel);
-      summary += meshMetricsText(m, mp, &observed);
-    }
-  }
+  summary += meshScoreText(o, c, in, p, out.mesh);
   summary += qualityText(frontend);
+  return summary;
+}
+
+// Honest exit codes: a run that mapped nothing (or lost more than the
+// configured share) did not succeed, whatever it wrote. Empty: it did.
+std::string runFailure(const HxmapConfig& c, const Frontend& frontend) {
+  const size_t processed = frontend.trajectory().size(), lost = frontend.lostFrames();
+  if (processed > 0 && frontend.trackingCounts().tracked == 0) {
+    return fmt::format("nothing was mapped: none of the {} frames was tracked well enough to fuse", processed);
+  }
+  if (processed > 0 && static_cast<double>(lost) > c.runtime.max_lost_share * static_cast<double>(processed)) {
+    return fmt::format("{} of {} frames lost, more than runtime.max_lost_share ({:g})", lost, processed,
+                       c.runtime.max_lost_share);
+  }
+  return {};
+}
+
+}  // namespace
+
+int runCommand(const RunOptions& o) {
+  auto config = loadAndPrint(o.config);
+  if (!config) {
+    spdlog::error("{}", config.message());
+    return 2;
+  }
+  const HxmapConfig& c = *config;
+  if (Status s = checkRunOptions(o); !s) {
+    spdlog::error("{}", s.message());
+    return 2;
+  }
+  Expected<RunInput> input = openInput(o, c);
+  if (!input) {
+    spdlog::error("{}", input.message());
+    return 2;
+  }
+  Expected<RunPipeline> pipeline = buildPipeline(o, c, *input);
+  if (!pipeline) {
+    spdlog::error("{}", pipeline.message());
+    return 2;
+  }
+  RunInput& in = *input;
+  RunPipeline& p = *pipeline;
+  const Frontend& frontend = *p.frontend;
+
+  StopSignals signals;
+  RunRecord rec(o);
+  if (p.realtime) {
+    if (Status s = runLive(o, c, in, p, rec); !s) {
+      spdlog::error("{}", s.message());
+      return 2;
+    }
+  } else {
+    runOffline(o, in, p, rec);
+  }
+  rec.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - rec.start).count();
+#ifdef HXMAP_HAVE_DDS
+  std::string dds_text;
+  if (p.publisher) {
+    // Everything mapped goes out before the program ends (transient-local
+    // readers that join while it is still up get the whole map).
+    p.publisher->flush(frontend.map(), frontend.trajectory(), rec.end_counters);
+    dds_text = publisherStatsText(p.publisher->stats(), rec.wall_s);
+  }
+#endif
+
+  const RunOutputs out = writeOutputs(o, c, p, rec);
+  int exit_code = rec.first_error.empty() && out.ok() ? 0 : 1;
+  std::string summary = summarize(o, c, in, p, rec, out);
 #ifdef HXMAP_HAVE_DDS
   summary += dds_text;
 #endif
-  if (refine.jobs > 0) {
-    const auto pj = percentiles(refine.job_ms), pi = percentiles(refine.iteration_ms),
-               ps = percentiles(refine.setup_ms);
-    const auto pr = percentiles(refine.result_ms);
-    const double n = static_cast<double>(refine.jobs);
-    summary += fmt::format(
-        "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back ({} "
-        "completed where fusion had none)\n"
-        "  per job median {:.0f} ms (setup {:.1f} ms, write-back and field sampling {:.1f} ms), per iteration median "
-        "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
-        "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
-        refine.jobs, refine.converged, refine.out_of_time, refine.voxels, refine.completed, pj.median, ps.median,
-        pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
-    size_t detail_bytes = 0;
-    const auto details = frontend.details();
-    for (const auto& d : details) detail_bytes += d->memoryBytes();
-    if (!details.empty()) {
-      summary += fmt::format("  detail layer in the mesh: {} regions, {:.1f} MiB\n", details.size(),
-                             static_cast<double>(detail_bytes) / (1 << 20));
-    }
-  } else if (frontend.refineJobsMade() > 0) {
-    summary += fmt::format("refinement: {} ROI jobs made\n", frontend.refineJobsMade());
-  }
+  summary += refineText(frontend, rec.refine);
   if (!o.save_quality.empty()) {
     if (auto s = writeQualityMaps(o.save_quality, frontend); !s) {
       spdlog::error("{}", s.message());
@@ -679,31 +769,24 @@ int runCommand(const RunOptions& o) {
       summary += fmt::format("quality: indicator images per keyframe, rois.ply and blocks.csv in {}\n", o.save_quality);
     }
   }
-  summary += fmt::format("outputs: {}\n", written.empty() ? std::string("none") : fmt::format("{}", fmt::join(written, ", ")));
-  if (!not_written.empty()) summary += fmt::format("not written (see the errors): {}\n", fmt::join(not_written, ", "));
-  if (!first_error.empty()) summary += "stopped early: " + first_error + "\n";
-  if (stopped) summary += "stopped early by a signal: outputs cover the frames processed until then\n";
-  // Honest exit codes: a run that mapped nothing (or lost more than the
-  // configured share) did not succeed, whatever it wrote.
-  const size_t processed = frontend.trajectory().size(), lost = frontend.lostFrames();
-  std::string failure;
-  if (processed > 0 && frontend.trackingCounts().tracked == 0) {
-    failure = fmt::format("nothing was mapped: none of the {} frames was tracked well enough to fuse", processed);
-  } else if (processed > 0 && static_cast<double>(lost) > c.runtime.max_lost_share * static_cast<double>(processed)) {
-    failure = fmt::format("{} of {} frames lost, more than runtime.max_lost_share ({:g})", lost, processed,
-                          c.runtime.max_lost_share);
+  summary += fmt::format("outputs: {}\n",
+                         out.written.empty() ? std::string("none") : fmt::format("{}", fmt::join(out.written, ", ")));
+  if (!out.not_written.empty()) {
+    summary += fmt::format("not written (see the errors): {}\n", fmt::join(out.not_written, ", "));
   }
-  if (!failure.empty()) {
+  if (!rec.first_error.empty()) summary += "stopped early: " + rec.first_error + "\n";
+  if (rec.stopped) summary += "stopped early by a signal: outputs cover the frames processed until then\n";
+  if (const std::string failure = runFailure(c, frontend); !failure.empty()) {
     summary += "result: failed, " + failure + "\n";
     spdlog::error("{}", failure);
     exit_code = 1;
   }
-  if (!o.trace.empty()) {
-    if (auto s = trace.write(o.trace); !s) {
+  if (rec.tracing) {
+    if (auto s = rec.trace.write(o.trace); !s) {
       spdlog::error("{}", s.message());
       exit_code = 1;
     } else {
-      summary += fmt::format("trace: {} ({} events; open in ui.perfetto.dev)\n", o.trace, trace.size());
+      summary += fmt::format("trace: {} ({} events; open in ui.perfetto.dev)\n", o.trace, rec.trace.size());
     }
   }
   if (auto s = drv::writeTextFile((fs::path(o.out_dir) / "summary.txt").string(), summary); !s) {
