@@ -98,10 +98,9 @@ void Frontend::warmUp() {
 
 FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T_given) {
   FrameResult r;
-  // DESIGN: a pose is the depth camera's (tracking aligns depth), so it
-  // carries the depth image's stamp. On the whole TUM fr1/xyz, whose color
-  // and depth are up to 17 ms apart, stamping poses with the color time
-  // instead cost 1.17 -> 1.28 cm ATE.
+  // A pose is the depth camera's (tracking aligns depth), so it carries
+  // the depth image's stamp (the color stamp cost 1.17 -> 1.28 cm ATE on
+  // the whole TUM fr1/xyz, whose images are up to 17 ms apart).
   r.stamp_ns = frame.depth_stamp_ns > 0 ? frame.depth_stamp_ns : frame.stamp_ns;
 
   // 1. Preprocess: depth in meters, denoise, pyramid, normals, confidence.
@@ -110,26 +109,63 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
     StageTimer t(r.stage_ms[kPreprocess]);
     pre = alg::preprocessFrame(frame, camera_, params_.preprocess, parallel_);
   }
+  if (!initialized_ && !canStartMap(pre, r)) return r;
 
   // 2. Track: against the model, else frame to frame, else lost.
-  alg::TrackingDecision decision;
   alg::IcpResult icp;
-  Eigen::Isometry3d T = T_given ? *T_given : T_initial_;
-  if (T_given && initialized_) {
-    decision = state_machine_.given();
-  } else if (!initialized_) {
-    if (pre.valid_pixels < minValidPixels()) {
-      decision.reason = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels) to start the map";
-      ++lost_frames_;
-      r.failure = decision.reason;
-      r.T_world_cam = T_initial_;
-      trajectory_.push_back({r.stamp_ns, r.T_world_cam});
-      return r;
-    }
+  Eigen::Isometry3d T_world_cam = T_given ? *T_given : T_initial_;
+  const alg::TrackingDecision decision = locate(pre, T_given, icp, T_world_cam, r);
+  if (!r.tracked) {
+    keepLost(r);
+    return r;
+  }
+  if (lost_since_) fillLostPoses(r.stamp_ns, T_world_cam);
+  if (!params_.odometry_bias.isZero(0)) T_world_cam = T_world_cam * alg::expSE3(params_.odometry_bias);
+  if (!decision.fuse) {
+    followWithoutFusing(pre, T_world_cam, decision, r);
+    return r;
+  }
+
+  // 3. Integrate the range-gated depth with per-pixel confidence.
+  fuse(pre, T_world_cam, r);
+
+  // 4. Raycast the model at the new pose for the next frame (the fused depth
+  //    predicts where each ray meets the surface).
+  {
+    StageTimer t(r.stage_ms[kRaycast]);
+    renderModel(last_frame_, T_last_);
+  }
+  trajectory_.push_back({r.stamp_ns, T_world_cam});
+
+  // 5. Keyframes by motion and time (quality, refinement, feedback,
+  //    keyframe database, loop closure).
+  if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T_world_cam, last_kf_ns_, r.stamp_ns, params_.tracking,
+                                          last_kf_depth_m_, params_.tsdf.voxel_size_m)) {
+    makeKeyframe(icp, T_world_cam, r);
+  }
+  initialized_ = true;
+  return r;
+}
+
+bool Frontend::canStartMap(const alg::PreprocessedFrame& pre, FrameResult& r) {
+  if (pre.valid_pixels >= minValidPixels()) return true;
+  r.failure = "too little valid depth (" + std::to_string(pre.valid_pixels) + " pixels) to start the map";
+  ++lost_frames_;
+  r.T_world_cam = T_initial_;
+  trajectory_.push_back({r.stamp_ns, r.T_world_cam});
+  return false;
+}
+
+alg::TrackingDecision Frontend::locate(const alg::PreprocessedFrame& pre, const Eigen::Isometry3d* T_given,
+                                       alg::IcpResult& icp, Eigen::Isometry3d& T_world_cam, FrameResult& r) {
+  alg::TrackingDecision decision;
+  if (!initialized_) {
     decision = state_machine_.start();
+  } else if (T_given) {
+    decision = state_machine_.given();
   } else {
     StageTimer t(r.stage_ms[kTrack]);
-    decision = track(pre, icp, T);
+    decision = track(pre, icp, T_world_cam);
   }
   r.state = decision.state;
   r.pose_source = decision.source;
@@ -138,101 +174,89 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
   r.inliers = icp.inliers;
   r.rms_residual_m = icp.rms_residual_m;
   r.consistent_ratio = icp.consistent_ratio;
+  return decision;
+}
 
-  if (!r.tracked) {
-    // Keep the map and the last pose; restart motion from rest.
-    ++lost_frames_;
-    velocity_.setIdentity();
-    velocity_valid_ = false;  // the next pose is not one frame after the last
-    velocity_dt_s_ = 0;
-    r.T_world_cam = T_last_;
-    if (!lost_since_) lost_since_ = trajectory_.size();
-    trajectory_.push_back({r.stamp_ns, r.T_world_cam});
-    return r;
-  }
-  if (lost_since_) fillLostPoses(r.stamp_ns, T);
-  if (!params_.odometry_bias.isZero(0)) T = T * alg::expSE3(params_.odometry_bias);
-  if (!decision.fuse) {
-    // Follow the camera without fusing: the next frame is tracked from
-    // here, against the model rendered here and this frame.
-    followPose(T, pre);
-    r.T_world_cam = T;
-    if (decision.source != alg::PoseSource::kRelocalization) {  // relocalization rendered it already
-      StageTimer t(r.stage_ms[kRaycast]);
-      renderModel(previous_frame_, T);
-    }
-    trajectory_.push_back({r.stamp_ns, T});
-    return r;
-  }
+void Frontend::keepLost(FrameResult& r) {
+  // Keep the map and the last pose; restart motion from rest.
+  ++lost_frames_;
+  velocity_.setIdentity();
+  velocity_valid_ = false;  // the next pose is not one frame after the last
+  velocity_dt_s_ = 0;
+  r.T_world_cam = T_last_;
+  if (!lost_since_) lost_since_ = trajectory_.size();
+  trajectory_.push_back({r.stamp_ns, r.T_world_cam});
+}
 
-  // 3. Integrate the range-gated depth with per-pixel confidence.
+void Frontend::followWithoutFusing(const alg::PreprocessedFrame& pre, const Eigen::Isometry3d& T_world_cam,
+                                   const alg::TrackingDecision& decision, FrameResult& r) {
+  // The next frame is tracked from here, against the model rendered here
+  // and this frame.
+  followPose(T_world_cam, pre);
+  r.T_world_cam = T_world_cam;
+  if (decision.source != alg::PoseSource::kRelocalization) {  // relocalization rendered it already
+    StageTimer t(r.stage_ms[kRaycast]);
+    renderModel(previous_frame_, T_world_cam);
+  }
+  trajectory_.push_back({r.stamp_ns, T_world_cam});
+}
+
+void Frontend::fuse(alg::PreprocessedFrame& pre, const Eigen::Isometry3d& T_world_cam, FrameResult& r) {
   {
     StageTimer t(r.stage_ms[kIntegrate]);
-    alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, camera_, T.cast<float>()};
+    alg::DepthObservation obs{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, camera_,
+                              T_world_cam.cast<float>()};
     alg::integrate(map_, obs, parallel_);
   }
-  followPose(T, pre);
+  followPose(T_world_cam, pre);
   last_frame_ = std::move(pre);  // headers: previous_frame_ shares the buffers
   r.integrated = true;
-  r.T_world_cam = T;
+  r.T_world_cam = T_world_cam;
+}
 
-  // 4. Raycast the model at the new pose for the next frame (the fused depth
-  //    predicts where each ray meets the surface).
+void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& T_world_kf, FrameResult& r) {
+  const Eigen::Isometry3d T_previous_kf = T_last_kf_;
+  const alg::PreprocessedFrame previous_kf = keyframe_reference_;  // headers
+  const Eigen::Isometry3d T_previous_kf_color = T_keyframe_color_;
+  r.keyframe = true;
+  r.keyframe_id = static_cast<uint32_t>(keyframes_);
+  if (params_.feedback.enabled) {
+    keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
+  }
+  T_last_kf_ = T_world_kf;
+  last_kf_ns_ = r.stamp_ns;
+  keyframe_reference_ = last_frame_;
+  T_keyframe_color_ = T_previous_color_;
+  if (params_.tracking.keyframe_baseline_ratio > 0 && !last_frame_.levels.empty()) {
+    last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
+  }
+  ++keyframes_;
+  if (params_.quality_enabled) {
+    StageTimer t(r.stage_ms[kKeyframe]);
+    scoreKeyframe(r);
+    if (params_.refine_enabled) {
+      keepKeyframeImages(r.keyframe_id);
+      makeRefineJobs(r.keyframe_id);
+    }
+  }
+  if (!params_.relocalization.enabled) return;
+  double features_ms = 0;
+  alg::FrameFeatures features;
   {
-    StageTimer t(r.stage_ms[kRaycast]);
-    renderModel(last_frame_, T_last_);
+    StageTimer t(features_ms);
+    features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T_world_kf);
   }
-
-  trajectory_.push_back({r.stamp_ns, T});
-
-  // 5. Keyframes by motion and time.
-  if (!initialized_ || alg::isNewKeyframe(T_last_kf_, T, last_kf_ns_, r.stamp_ns, params_.tracking,
-                                          last_kf_depth_m_, params_.tsdf.voxel_size_m)) {
-    const Eigen::Isometry3d T_previous_kf = T_last_kf_;
-    const alg::PreprocessedFrame previous_kf = keyframe_reference_;  // headers
-    const Eigen::Isometry3d T_previous_kf_color = T_keyframe_color_;
-    r.keyframe = true;
-    r.keyframe_id = static_cast<uint32_t>(keyframes_);
-    if (params_.feedback.enabled)
-      keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
-    T_last_kf_ = T;
-    last_kf_ns_ = r.stamp_ns;
-    keyframe_reference_ = last_frame_;
-    T_keyframe_color_ = T_previous_color_;
-    if (params_.tracking.keyframe_baseline_ratio > 0 && !last_frame_.levels.empty()) {
-      last_kf_depth_m_ = alg::medianDepth(last_frame_.levels.back().depth);
+  r.stage_ms[kKeyframe] += features_ms;
+  // Loop closure: a closure found now moves this frame too.
+  if (params_.loop_closure.enabled) {
+    double loop_ms = 0;
+    {
+      StageTimer t(loop_ms);
+      sendToLoopCloser(r.keyframe_id, std::move(features), previous_kf, T_previous_kf, T_previous_kf_color, T_world_kf);
     }
-    ++keyframes_;
-    if (params_.quality_enabled) {
-      StageTimer t(r.stage_ms[kKeyframe]);
-      scoreKeyframe(r);
-      if (params_.refine_enabled) {
-        keepKeyframeImages(r.keyframe_id);
-        makeRefineJobs(r.keyframe_id);
-      }
-    }
-    if (params_.relocalization.enabled) {
-      double features_ms = 0;
-      alg::FrameFeatures features;
-      {
-        StageTimer t(features_ms);
-        features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T);
-      }
-      r.stage_ms[kKeyframe] += features_ms;
-      // 6. Loop closure: a closure found now moves this frame too.
-      if (params_.loop_closure.enabled) {
-        double loop_ms = 0;
-        {
-          StageTimer t(loop_ms);
-          sendToLoopCloser(r.keyframe_id, std::move(features), previous_kf, T_previous_kf, T_previous_kf_color, T);
-        }
-        r.stage_ms[kKeyframe] += loop_ms;
-        r.T_world_cam = trajectory_.back().T_world_cam;
-      }
-    }
+    r.stage_ms[kKeyframe] += loop_ms;
+    r.T_world_cam = trajectory_.back().T_world_cam;
   }
-  initialized_ = true;
-  return r;
 }
 
 void Frontend::fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found) {
@@ -591,108 +615,6 @@ int Frontend::reintegratePending(int max) {
   return done;
 }
 
-void FeedbackTally::add(const alg::SolveReport& report, double ms) {
-  if (!report.failure.empty()) {
-    ++failed;
-    return;
-  }
-  ++windows;
-  stopped += report.stopped;
-  solve_ms.push_back(ms);
-  cost_before += report.base_cost_before;
-  cost_after += report.base_cost_after;
-  explicit_residuals += static_cast<uint64_t>(report.after.photo_explicit + report.after.depth_explicit);
-  implicit_residuals += static_cast<uint64_t>(report.after.photo_implicit + report.after.depth_implicit);
-}
-
-std::string FeedbackTally::text(const FeedbackCounters& c, const alg::FeedbackParams& p) const {
-  if (!p.enabled) return "pose feedback: off\n";
-  std::vector<double> v = solve_ms;
-  std::sort(v.begin(), v.end());
-  auto at = [&](double q) {
-    return v.empty() ? 0.0 : v[static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5)];
-  };
-  return fmt::format(
-      "pose feedback: window {}, {} windows solved ({} cut short), solve median {:.1f} ms, p90 {:.1f} ms (without "
-      "waits for slack); cost "
-      "{:.4g} -> {:.4g} (summed); residuals per window {:.0f} explicit, {:.0f} implicit (refined regions)\n"
-      "  {} keyframe corrections sent ({} checked densely, {} refused there, {:.1f} ms per check), {} applied ({} "
-      "too late); {} keyframes re-integrated ({:.1f} ms each), {} waiting\n",
-      p.window, windows, stopped, at(0.5), at(0.9), cost_before, cost_after,
-      static_cast<double>(explicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)),
-      static_cast<double>(implicit_residuals) / static_cast<double>(std::max<uint64_t>(1, windows)), corrections_sent,
-      verified, refused, verified ? verify_ms / static_cast<double>(verified) : 0.0, c.corrections, c.corrections_late,
-      c.reintegrations, c.reintegrations ? c.reintegrate_ms / static_cast<double>(c.reintegrations) : 0.0,
-      c.reintegrations_pending) +
-         (c.snapshots == 0 ? std::string()
-                           : fmt::format("  map copies for the feedback thread: {}, {:.0f} blocks and {:.2f} ms each "
-                                         "(on the frontend's thread)\n",
-                                         c.snapshots, static_cast<double>(c.snapshot_blocks) / c.snapshots,
-                                         c.snapshot_ms / static_cast<double>(c.snapshots)));
-}
-
-void FeedbackSolver::add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& maps) {
-  published_.emplace_back(keyframe.id, keyframe.T_world_cam);
-  window_.add(std::move(keyframe), maps);
-  // Forget the keyframes that slid out.
-  const uint32_t oldest = window_.keyframes().front().id;
-  published_.erase(
-      std::remove_if(published_.begin(), published_.end(), [&](const auto& p) { return p.first < oldest; }),
-      published_.end());
-}
-
-std::vector<KeyframeCorrection> FeedbackSolver::solve(const alg::FeedbackMaps& maps, const std::function<bool()>& stop,
-                                                      int iterations) {
-  std::vector<KeyframeCorrection> out;
-  if (window_.size() == 0) return out;
-  window_.setIterations(iterations > 0 ? iterations : window_.params().iterations);
-  // The solve's own time: what the stop callback spends (a scheduler
-  // waiting for slack between slices) is not the solver's.
-  using Clock = std::chrono::steady_clock;
-  double waited_ms = 0;
-  std::function<bool()> timed_stop;
-  if (stop) {
-    timed_stop = [&] {
-      const auto a = Clock::now();
-      const bool halt = stop();
-      waited_ms += std::chrono::duration<double, std::milli>(Clock::now() - a).count();
-      return halt;
-    };
-  }
-  const auto t0 = Clock::now();
-  const alg::SolveReport rep = window_.solve(maps, timed_stop);
-  tally_.add(rep, std::chrono::duration<double, std::milli>(Clock::now() - t0).count() - waited_ms);
-  if (!rep.failure.empty()) return out;
-  const auto& kfs = window_.keyframes();
-  for (size_t j = 0; j < kfs.size() && j < rep.marginal_information.size(); ++j) {
-    auto it = std::find_if(published_.begin(), published_.end(), [&](const auto& p) { return p.first == kfs[j].id; });
-    if (it == published_.end()) continue;
-    const alg::Vector6d d = alg::logSE3(it->second.inverse() * kfs[j].T_world_cam);
-    const double chi2 = d.dot(rep.marginal_information[j] * d);
-    if (!(chi2 > window_.params().min_correction_chi2)) continue;
-    if (window_.params().require_channel_agreement && j < rep.channels_agree.size() && !rep.channels_agree[j]) continue;
-    if (window_.params().verify_stride > 0) {
-      // In slices, as the solve's casts: a correction not checked to the end
-      // is not sent (the next solve finds it again).
-      const double waited_before = waited_ms;
-      const auto v0 = Clock::now();
-      const alg::PoseWindow::Verification v = window_.verify(j, it->second, kfs[j].T_world_cam, maps, timed_stop);
-      tally_.verify_ms +=
-          std::chrono::duration<double, std::milli>(Clock::now() - v0).count() - (waited_ms - waited_before);
-      if (v.stopped) break;
-      ++tally_.verified;
-      if (!v.passed) {
-        ++tally_.refused;
-        continue;
-      }
-    }
-    it->second = kfs[j].T_world_cam;
-    out.push_back({kfs[j].id, kfs[j].T_world_cam});
-  }
-  tally_.corrections_sent += out.size();
-  return out;
-}
-
 bool SerialFeedback::step(Frontend& frontend) {
   std::vector<alg::WindowKeyframe> kfs = frontend.takeFeedbackKeyframes();
   if (kfs.empty()) return false;
@@ -815,32 +737,6 @@ void Frontend::makeRefineJobs(uint32_t keyframe_id) {
 std::vector<RefineJob> Frontend::takeRefineJobs() {
   std::vector<RefineJob> out;
   out.swap(pending_jobs_);
-  return out;
-}
-
-RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params, RefineBudget budget) {
-  using Clock = std::chrono::steady_clock;
-  auto ms = [](Clock::time_point a, Clock::time_point b) {
-    return std::chrono::duration<double, std::milli>(b - a).count();
-  };
-  RefineOutcome out;
-  out.job_id = job.id;
-  out.map_epoch = job.map_epoch;
-  const auto t0 = Clock::now();
-  alg::RoiRefiner refiner(*job.snapshot, job.roi.box_world, job.keyframes, params);
-  const auto t1 = Clock::now();
-  while (refiner.iterate(std::max(1, params.slice_iterations))) {
-    if (budget == RefineBudget::kIterationsAndTime && ms(t1, Clock::now()) >= params.time_budget_ms) {
-      out.out_of_time = true;
-      break;
-    }
-  }
-  const auto t2 = Clock::now();
-  out.result = refiner.result();
-  if (refiner.iterations() > 0)
-    out.surface = std::make_shared<alg::FieldSurface>(refiner.field(), 3.0f, &refiner.seen());
-  const auto t3 = Clock::now();
-  out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);
   return out;
 }
 

@@ -18,7 +18,10 @@
 #include "hxmap/feedback/field_surface.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
+#include "hxmap/frontend/feedback_solver.hpp"
 #include "hxmap/frontend/loop_closer.hpp"
+#include "hxmap/frontend/refine_job.hpp"
+#include "hxmap/frontend/results.hpp"
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/posegraph/params.hpp"
 #include "hxmap/posegraph/pose_graph.hpp"
@@ -72,116 +75,6 @@ struct FrontendParams {
   /// every tracked pose on the right (T <- T exp(xi)), to measure how pose
   /// feedback copes with drifting odometry. Zero in any real run.
   Eigen::Matrix<double, 6, 1> odometry_bias = Eigen::Matrix<double, 6, 1>::Zero();
-};
-
-/// One ROI refinement, self-contained: a copy of the ROI's blocks and the
-/// images of the keyframes that see it, so a worker thread never touches
-/// the frontend's map.
-struct RefineJob {
-  uint64_t id = 0;
-  uint32_t keyframe_id = 0;  ///< the keyframe whose scoring chose the ROI
-  uint64_t map_epoch = 0;    ///< the map it was cut from (a loop closure rebuilds the map)
-  alg::Roi roi;
-  std::shared_ptr<const alg::TsdfMap> snapshot;
-  std::vector<alg::KeyframeImages> keyframes;
-};
-
-/// A job's outcome, for the map's writer.
-struct RefineOutcome {
-  uint64_t job_id = 0;
-  uint64_t map_epoch = 0;  ///< the job's
-  alg::RefineResult result;
-  double setup_ms = 0;       ///< field initialization and ray collection
-  double train_ms = 0;       ///< the iterations
-  double result_ms = 0;      ///< write-back and sigma_Neural
-  bool out_of_time = false;  ///< stopped by params.time_budget_ms
-  /// The trained field as the pose feedback's implicit surface (sampled
-  /// once, timed in result_ms); null when the job had nothing to learn.
-  std::shared_ptr<const alg::FieldSurface> surface;
-};
-
-/// Whether a job run to its end also stops at params.time_budget_ms of
-/// wall time (benchmarks, to bound a job's cost) or only at its iteration
-/// cap (offline runs: the same input then gives the same map and
-/// trajectory on any machine and under any load).
-enum class RefineBudget { kIterationsAndTime, kIterationsOnly };
-
-/// Runs a job to its end on the calling thread (offline runs and
-/// benchmarks; the real-time runtime runs jobs in slices under its
-/// scheduler instead).
-RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params,
-                           RefineBudget budget = RefineBudget::kIterationsAndTime);
-
-/// kKeyframe runs on keyframes only (0 ms on other frames): quality
-/// scoring, refinement jobs and the keyframe database's features.
-enum Stage { kPreprocess = 0, kTrack, kIntegrate, kRaycast, kKeyframe, kStageCount };
-inline const char* stageName(int s) {
-  static const char* names[] = {"preprocess", "track", "integrate", "raycast", "keyframe"};
-  return names[s];
-}
-
-struct FrameResult {
-  int64_t stamp_ns = 0;  ///< the time the pose refers to: the depth image's capture
-  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
-  bool tracked = false;     ///< the frame has a pose (tracked or degraded; the first frame)
-  alg::TrackingState state = alg::TrackingState::kLost;
-  alg::PoseSource pose_source = alg::PoseSource::kNone;
-  bool integrated = false;  ///< the frame was fused into the map
-  bool keyframe = false;
-  uint32_t keyframe_id = 0;  ///< when keyframe: its id (0, 1, ...)
-  size_t rois = 0;           ///< when keyframe: ROIs selected after scoring it
-  std::string failure;       ///< why the frame was not tracked or not fused
-  int inliers = 0;
-  double rms_residual_m = 0;
-  double consistent_ratio = 0;  ///< share of associations within the noise gate
-  std::array<double, kStageCount> stage_ms{};
-};
-
-/// What a runner knows about a frame beyond its result, for observers such
-/// as the DDS publisher (zeros where the runner has no such figure).
-struct RunCounters {
-  uint64_t frames_dropped = 0, deadline_misses = 0, refine_jobs_done = 0, refine_jobs_shed = 0;
-  double latency_ms = 0;  ///< this frame: arrival to pose
-};
-
-/// Pose feedback's estimate of a keyframe's pose.
-/// A keyframe for a pose-feedback solver on another thread, with the map
-/// copy to solve on (Frontend::feedbackSnapshot; shared by the keyframes
-/// handed over together).
-struct FeedbackInput {
-  alg::WindowKeyframe keyframe;
-  std::shared_ptr<const alg::TsdfMap> map;
-};
-
-struct KeyframeCorrection {
-  uint32_t keyframe_id = 0;
-  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
-};
-
-/// What applying corrections did, summed over a run.
-struct FeedbackCounters {
-  uint64_t corrections = 0;       ///< keyframe corrections applied
-  uint64_t corrections_late = 0;  ///< for keyframes no longer kept (ignored)
-  uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
-  uint64_t reintegrations_pending = 0;
-  double reintegrate_ms = 0;  ///< total
-  uint64_t snapshots = 0;     ///< map copies for a feedback thread (feedbackSnapshot)
-  uint64_t snapshot_blocks = 0;
-  double snapshot_ms = 0;     ///< total
-};
-
-/// How tracking found its poses, summed over a run.
-struct TrackingCounters {
-  uint64_t velocity_retries = 0;  ///< frames tracked a second time from the constant-velocity guess
-  uint64_t velocity_wins = 0;     ///< ... where that guess gave the better result
-  double photometric_scale_m = 0;  ///< the photometric weight the last frame was tracked with
-  uint64_t relocalization_attempts = 0;  ///< lost frames matched against the keyframe database
-  uint64_t relocalization_rejected = 0;  ///< PnP candidates the ICP check refused
-  double relocalization_ms = 0;          ///< total over the attempts
-  double relocalization_features_ms = 0, relocalization_query_ms = 0;  ///< of which ORB, and matching + PnP
-  double keyframe_features_ms = 0;       ///< total ORB extraction for the database
-  uint64_t interpolated_poses = 0;       ///< lost frames given poses between the ones either side, once found again
-  size_t database_keyframes = 0, database_bytes = 0;
 };
 
 /// Process-wide: large buffers come from the heap and heap memory is kept
@@ -348,8 +241,26 @@ class Frontend {
   void sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const alg::PreprocessedFrame& previous_kf,
                         const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
                         const Eigen::Isometry3d& T_world_kf);
-  /// Step 2 of process(): the decision, the result that gave the pose (or
-  /// the model's failed one) and the pose.
+  // The steps of process(), in order.
+  /// Before the map has started: true when `pre` has the depth to start
+  /// it; else the frame is counted lost at the initial pose.
+  bool canStartMap(const alg::PreprocessedFrame& pre, FrameResult& r);
+  /// Step 2: the pose (given, the first, or tracked) and its decision,
+  /// with the tracking fields of `r` filled in.
+  alg::TrackingDecision locate(const alg::PreprocessedFrame& pre, const Eigen::Isometry3d* T_given,
+                               alg::IcpResult& icp, Eigen::Isometry3d& T_world_cam, FrameResult& r);
+  /// Tracking lost: the map and the last pose are kept, motion restarts from rest.
+  void keepLost(FrameResult& r);
+  /// Tracked but not to be fused: the camera is followed.
+  void followWithoutFusing(const alg::PreprocessedFrame& pre, const Eigen::Isometry3d& T_world_cam,
+                           const alg::TrackingDecision& decision, FrameResult& r);
+  /// Step 3: the frame fused at its pose; it becomes the last frame.
+  void fuse(alg::PreprocessedFrame& pre, const Eigen::Isometry3d& T_world_cam, FrameResult& r);
+  /// Step 5: the frame (last_frame_) becomes a keyframe: quality and
+  /// refinement jobs, the feedback window, the keyframe database, loop closure.
+  void makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& T_world_kf, FrameResult& r);
+  /// Within locate(): the decision, the result that gave the pose (or the
+  /// model's failed one) and the pose.
   alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T);
   void scoreKeyframe(FrameResult& r);
   void keepKeyframeImages(uint32_t id);
@@ -430,48 +341,6 @@ class Frontend {
   std::deque<std::shared_ptr<const alg::RefinedDetail>> details_;  ///< oldest first (under surfaces_mutex_)
   size_t detail_bytes_ = 0;
   int refine_budget_ = -1;
-};
-
-/// Pose feedback's figures for a run's summary.
-struct FeedbackTally {
-  uint64_t windows = 0, stopped = 0, failed = 0;
-  uint64_t corrections_sent = 0;           ///< keyframe estimates that stood out of the solve's noise
-  /// Of the estimates that stood out, how many were checked densely
-  /// (FeedbackParams::verify_stride) and refused there, and the checks' time.
-  uint64_t verified = 0, refused = 0;
-  double verify_ms = 0;
-  std::vector<double> solve_ms;            ///< per solved window, without the stop callback's waits
-  double cost_before = 0, cost_after = 0;  ///< summed over windows
-  /// Residuals at the solution, summed over windows: explicit (TSDF) and
-  /// implicit (refined regions' fields), photometric + depth.
-  uint64_t explicit_residuals = 0, implicit_residuals = 0;
-  void add(const alg::SolveReport& report, double ms);
-  /// Lines for the run summary (with the frontend's correction counters).
-  std::string text(const FeedbackCounters& counters, const alg::FeedbackParams& params) const;
-};
-
-/// The pose-feedback window as the runtime drives it: keyframes in, a
-/// solve, out the corrections that stand out of the solve's own noise
-/// (FeedbackParams::min_correction_chi2, against the pose the frontend
-/// has). One thread uses it (the offline loop or the real-time feedback
-/// thread).
-class FeedbackSolver {
- public:
-  explicit FeedbackSolver(const alg::FeedbackParams& params) : window_(params) {}
-  /// A keyframe from the frontend (takeFeedbackKeyframes), with its pose as
-  /// the frontend has it.
-  void add(alg::WindowKeyframe keyframe, const alg::FeedbackMaps& maps);
-  /// Solves the window (`iterations` > 0 caps the LM iterations; `stop` as
-  /// in PoseWindow::solve) and returns the corrections to send.
-  std::vector<KeyframeCorrection> solve(const alg::FeedbackMaps& maps, const std::function<bool()>& stop = {},
-                                        int iterations = 0);
-  const FeedbackTally& tally() const { return tally_; }
-  const alg::PoseWindow& window() const { return window_; }
-
- private:
-  alg::PoseWindow window_;
-  std::vector<std::pair<uint32_t, Eigen::Isometry3d>> published_;  ///< the frontend's pose per window keyframe
-  FeedbackTally tally_;
 };
 
 /// Pose feedback on the calling thread (offline runs, evaluation): after
