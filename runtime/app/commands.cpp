@@ -25,8 +25,8 @@
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
-#include "hxmap/runtime/realtime.hpp"
-#include "hxmap/runtime/trace.hpp"
+#include "hxmap/realtime/realtime.hpp"
+#include "hxmap/scheduler/trace.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "parallel.hpp"
 #include "progress.hpp"
@@ -538,7 +538,7 @@ void runOffline(const RunOptions& o, RunInput& in, RunPipeline& p, RunRecord& re
       }
     }
     for (const RefineJob& job : frontend.takeRefineJobs()) {
-      const RefineOutcome outcome = runRefineJob(job, p.params.implicit, RefineBudget::kIterationsOnly);
+      const RefineOutcome outcome = runRefineJob(job, p.params.refine.implicit, RefineBudget::kIterationsOnly);
       frontend.applyRefinement(outcome);
       rec.refine.add(outcome);
     }
@@ -1018,13 +1018,8 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.relocalization = c.relocalization;
   fp.quality = c.quality;
   fp.quality_enabled = c.quality_enabled;
-  fp.implicit = c.refine.implicit;
-  fp.refine_enabled = c.refine.enabled && c.quality_enabled;
-  fp.max_jobs_per_keyframe = c.refine.max_jobs_per_keyframe;
-  fp.min_job_keyframes = c.refine.min_job_keyframes;
-  fp.refine_cooldown_keyframes = c.refine.cooldown_keyframes;
-  fp.keyframe_images = c.refine.keyframe_images;
-  fp.max_pending_jobs = c.refine.max_pending_jobs;
+  fp.refine = c.refine;
+  fp.refine.enabled = c.refine.enabled && c.quality_enabled;
   fp.feedback = c.feedback;
   fp.loop_closure = c.loop_closure;
   fp.odometry_bias << 0.0, c.eval.odometry_bias_deg * M_PI / 180.0, 0.0, c.eval.odometry_bias_m, 0.0, 0.0;

@@ -26,11 +26,12 @@ Status writeKeyframeQuality(const std::string& dir, const Frontend& frontend, ui
       break;
     }
   }
-  const Eigen::Isometry3f T = frontend.lastPose().cast<float>();
+  const Eigen::Isometry3f T_world_cam = frontend.lastPose().cast<float>();
   for (int k = 0; k <= alg::kIndicatorCount; ++k) {
-    const cv::Mat values = alg::indicatorImage(frontend.blockScores(), *level, T, frontend.map().blockSize(), k);
+    const cv::Mat values =
+        alg::indicatorImage(frontend.blockScores(), *level, T_world_cam, frontend.map().blockSize(), k);
     cv::Mat image = alg::overlayHeatmap(frame.rgb, values);
-    if (k == alg::kIndicatorCount) alg::drawRoiBoxes(image, frontend.rois(), frontend.camera(), T);
+    if (k == alg::kIndicatorCount) alg::drawRoiBoxes(image, frontend.rois(), frontend.camera(), T_world_cam);
     cv::cvtColor(image, image, cv::COLOR_RGB2BGR);
     const std::string path = (fs::path(dir) / fmt::format("kf{:04d}_{}.png", keyframe_id, alg::indicatorName(k))).string();
     try {

@@ -29,12 +29,12 @@
 #include <fmt/format.h>
 
 #include "commands.hpp"
-#include "dds_loopback.hpp"
 #include "dds_glue.hpp"
+#include "dds_loopback.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dds/publisher.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
-#include "hxmap/runtime/realtime.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "test_data.hpp"
 
 using namespace hxmap;

@@ -122,8 +122,8 @@ int main(int argc, char** argv) {
     for (int r = 0; r < 20; ++r) {
       for (size_t j = 0; j < window.size(); ++j) {
         px2 += static_cast<int>(window.basePixels(j).size());
-        const Eigen::Isometry3d& T = window.keyframes()[j].T_world_cam;
-        (void)window.linearizeOnPlanes(j, T, T, {&map, {}}, window.basePixels(j), 10);
+        const Eigen::Isometry3d& T_world_kf = window.keyframes()[j].T_world_cam;
+        (void)window.linearizeOnPlanes(j, T_world_kf, T_world_kf, {&map, {}}, window.basePixels(j), 10);
       }
     }
     const double t2 = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();

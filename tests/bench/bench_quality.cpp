@@ -80,21 +80,21 @@ std::unordered_set<uint64_t> wellObserved(const drv::SyntheticScene& scene, cons
                                           std::unordered_set<uint64_t>& seen) {
   std::unordered_map<uint64_t, int> views;
   for (size_t f = 0; f < gt.size(); f += 6) {
-    const Eigen::Isometry3f T = gt[f].T_world_cam.cast<float>();
+    const Eigen::Isometry3f T_world_cam = gt[f].T_world_cam.cast<float>();
     std::unordered_map<uint64_t, int> hits;
     for (int v = 2; v < cam.height; v += 4) {
       for (int u = 2; u < cam.width; u += 4) {
         const Eigen::Vector3f ray = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-        const Eigen::Vector3f dir = (T.linear() * ray).normalized();
+        const Eigen::Vector3f dir = (T_world_cam.linear() * ray).normalized();
         float t = 0;
         Eigen::Vector3f n;
         int k = -1;
-        if (!scene.raycast(T.translation(), dir, t, n, k)) continue;
+        if (!scene.raycast(T_world_cam.translation(), dir, t, n, k)) continue;
         // The surface point counts for the blocks within half a voxel of it
         // along its normal: a surface on a block's face (the floor at z = 0)
         // belongs to the blocks on both sides, as the map's zero crossing
         // between their voxels does.
-        const Eigen::Vector3f p = T.translation() + t * dir;
+        const Eigen::Vector3f p = T_world_cam.translation() + t * dir;
         const bool good = t / ray.norm() <= 4.0f && std::abs(n.dot(dir)) >= 0.26f;
         uint64_t last = 0;
         for (const float side : {-0.5f, 0.5f}) {
@@ -286,7 +286,7 @@ int main(int argc, char** argv) {
   rt::FrontendParams every;
   every.tracking.keyframe_translation_m = 0;
   every.tracking.keyframe_interval_s = 0;
-  every.refine_enabled = false;  // scoring alone (making refinement jobs is timed in the same stage)
+  every.refine.enabled = false;          // scoring alone (making refinement jobs is timed in the same stage)
   every.relocalization.enabled = false;  // and so are the keyframe database's features
   std::vector<double> tum_ms;
   for (int rep = 0; rep < 3; ++rep) {

@@ -225,7 +225,7 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
   alg::MeshParams mp;
   {
     rt::FrontendParams p = params;
-    p.refine_enabled = false;
+    p.refine.enabled = false;
     rt::Frontend fe(cam, p);
     if (!gt.empty()) fe.setInitialPose(gt.front().T_world_cam);
     const auto t0 = Clock::now();
@@ -241,7 +241,7 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
     fe.process(f);
     for (const rt::RefineJob& job : fe.takeRefineJobs()) {
       const std::vector<float> before = roiDepthErrors(fe.map(), job);
-      const rt::RefineOutcome o = rt::runRefineJob(job, params.implicit);
+      const rt::RefineOutcome o = rt::runRefineJob(job, params.refine.implicit);
       fe.applyRefinement(o);
       out.depth.add(before, roiDepthErrors(fe.map(), job));
       const auto& st = o.result.stats;
@@ -354,7 +354,7 @@ int main(int argc, char** argv) {
   // A configuration's parameters (defaults without one); voxel size and
   // truncation are the benchmark's.
   rt::FrontendParams base;
-  base.implicit.detail_min_share = 0.5;  // the "+detail" mesh; a configuration file decides for itself
+  base.refine.implicit.detail_min_share = 0.5;  // the "+detail" mesh; a configuration file decides for itself
   if (argc > 3) {
     auto cfg = rt::loadConfig(argv[3]);
     if (!cfg) {

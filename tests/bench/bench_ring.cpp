@@ -16,7 +16,7 @@
 #include <thread>
 #include <vector>
 
-#include "hxmap/runtime/spsc_ring.hpp"
+#include "hxmap/ring/spsc_ring.hpp"
 
 using Clock = std::chrono::steady_clock;
 

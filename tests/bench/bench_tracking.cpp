@@ -121,7 +121,7 @@ int runSequence(const std::string& name, const std::string& dir, const rt::Hxmap
   }
   const alg::PinholeCamera& cam = d.camera();
   rt::FrontendParams fp = rt::frontendParams(config);
-  fp.refine_enabled = false;
+  fp.refine.enabled = false;
   rt::Frontend frontend(cam, fp);
   Eigen::Isometry3d T0 = Eigen::Isometry3d::Identity();
   alg::interpolatePose(gt, d.stamp(0), 200'000'000, T0);

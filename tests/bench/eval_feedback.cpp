@@ -54,7 +54,7 @@ struct RunResult {
 RunResult runSequence(const Sequence& s, bool feedback) {
   rt::FrontendParams fp;
   fp.quality_enabled = false;
-  fp.refine_enabled = false;
+  fp.refine.enabled = false;
   fp.feedback.enabled = feedback;
   fp.odometry_bias = s.bias;
   rt::Frontend fe(s.camera, fp);

@@ -52,10 +52,10 @@ PublisherParams params(const std::string& prefix) {
 }
 
 Eigen::Isometry3d poseAt(int k) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Eigen::AngleAxisd(0.1 * k, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
-  T.translation() = Eigen::Vector3d(0.01 * k, -0.2 + 0.003 * k, 1.5 - 0.02 * k);
-  return T;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  T_world_cam.linear() = Eigen::AngleAxisd(0.1 * k, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  T_world_cam.translation() = Eigen::Vector3d(0.01 * k, -0.2 + 0.003 * k, 1.5 - 0.02 * k);
+  return T_world_cam;
 }
 
 FrameResult frame(int k) {

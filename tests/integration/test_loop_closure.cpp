@@ -63,7 +63,7 @@ class LoopClosureRun : public ::testing::Test {
                  int late_frames = 0) {
     FrontendParams p;
     p.quality_enabled = false;
-    p.refine_enabled = false;
+    p.refine.enabled = false;
     p.feedback.enabled = false;
     p.loop_closure.enabled = loop_closure;
     p.odometry_bias << 0.0, bias * M_PI / 180.0, 0.0, 0.02 * bias, 0.0, 0.0;  // deg and m per frame

@@ -96,7 +96,7 @@ TEST_F(Pipeline, WarmUpLeavesTheFrontendAsNew) {
 
 TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirBox) {
   FrontendParams p;
-  p.implicit.iterations = 20;
+  p.refine.implicit.iterations = 20;
   Frontend fe(kCam, p);
   fe.setInitialPose(traj_[0].T_world_cam);
   std::vector<RefineJob> jobs;
@@ -106,7 +106,7 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   }
   ASSERT_FALSE(jobs.empty());
   EXPECT_EQ(jobs.size(), fe.refineJobsMade());
-  EXPECT_LE(jobs.size(), static_cast<size_t>(p.max_jobs_per_keyframe) * fe.keyframes());
+  EXPECT_LE(jobs.size(), static_cast<size_t>(p.refine.max_jobs_per_keyframe) * fe.keyframes());
   for (const auto& j : jobs) {
     ASSERT_TRUE(j.snapshot);
     EXPECT_GT(j.snapshot->blockCount(), 0u);
@@ -123,13 +123,13 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   // it only outside the field's bounds has none, and trains 0 iterations),
   // run and applied: voxels change inside its box only.
   size_t newest = jobs.size() - 1;
-  RefineOutcome o = runRefineJob(jobs[newest], p.implicit);
-  while (o.result.stats.iterations == 0 && newest > 0) o = runRefineJob(jobs[--newest], p.implicit);
+  RefineOutcome o = runRefineJob(jobs[newest], p.refine.implicit);
+  while (o.result.stats.iterations == 0 && newest > 0) o = runRefineJob(jobs[--newest], p.refine.implicit);
   const RefineJob& job = jobs[newest];
   EXPECT_GE(newest + 2, jobs.size()) << "the newest or the one before it trains";
   const alg::TsdfMap before = fe.map();
   EXPECT_GT(o.result.stats.iterations, 0);
-  EXPECT_LE(o.result.stats.iterations, p.implicit.iterations);
+  EXPECT_LE(o.result.stats.iterations, p.refine.implicit.iterations);
   ASSERT_FALSE(o.result.patch.entries.empty());
   const alg::PatchStats ps = fe.applyRefinement(o);
   EXPECT_EQ(ps.applied, o.result.patch.entries.size());
@@ -185,7 +185,7 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
   }
   EXPECT_GT(implicit, 0) << "no ray of the ROI's keyframes met its field";
   // A second job over the same box replaces the first field.
-  fe.applyRefinement(runRefineJob(job, p.implicit));
+  fe.applyRefinement(runRefineJob(job, p.refine.implicit));
   ASSERT_EQ(fe.implicitSurfaces().size(), 1u);
   EXPECT_NE(fe.implicitSurfaces().front().get(), o.surface.get());
 }
@@ -195,7 +195,7 @@ TEST_F(Pipeline, RefineJobsTrainOnKeyframesOlderThanTheImagePoolsLength) {
   // blocks keep, so jobs still get views older than the last 4 keyframes
   // (a first-in first-out pool never gives them one).
   FrontendParams p;
-  p.keyframe_images = 4;
+  p.refine.keyframe_images = 4;
   Frontend fe(kCam, p);
   fe.setInitialPose(traj_[0].T_world_cam);
   size_t jobs = 0, old_images = 0;

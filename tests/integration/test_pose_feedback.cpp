@@ -41,7 +41,7 @@ class PoseFeedbackLoop : public ::testing::Test {
   static FrontendParams feedbackParams(bool feedback, const Eigen::Matrix<double, 6, 1>& bias) {
     FrontendParams p;
     p.quality_enabled = false;
-    p.refine_enabled = false;
+    p.refine.enabled = false;
     p.feedback.enabled = feedback;
     p.odometry_bias = bias;
     p.feedback.image_level = 0;  // the camera is small already (320x240)

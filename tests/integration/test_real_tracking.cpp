@@ -35,7 +35,7 @@ Outcome track(const std::string& dir, size_t max_frames) {
   if (!opened) return o;
   const drv::Dataset& d = **opened;
   FrontendParams p = frontendParams(HxmapConfig{});
-  p.refine_enabled = false;
+  p.refine.enabled = false;
   Frontend fe(d.camera(), p);
   Eigen::Isometry3d T0;
   EXPECT_TRUE(alg::interpolatePose(d.groundTruth(), d.stamp(0), 200'000'000, T0));

@@ -8,7 +8,7 @@
 #include <thread>
 
 #include "hxmap/dataset/synthetic.hpp"
-#include "hxmap/runtime/realtime.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "synthetic_fixture.hpp"
 
 namespace hxmap::rt {
@@ -123,10 +123,10 @@ TEST_F(RealtimeTest, RefinementJobsAreWrittenBackOrCounted) {
   // Small jobs (this checks the plumbing, not the field) with ample slack
   // and no shedding, so that jobs complete even under ThreadSanitizer
   // (frontend frames up to 180 ms there).
-  p.implicit.iterations = 6;
-  p.implicit.rays_per_iteration = 48;
-  p.implicit.max_rays = 3000;
-  p.implicit.bias_rays = 150;
+  p.refine.implicit.iterations = 6;
+  p.refine.implicit.rays_per_iteration = 48;
+  p.refine.implicit.max_rays = 3000;
+  p.refine.implicit.bias_rays = 150;
   Frontend fe(cam_, p);
   fe.setInitialPose(T0_);
   options_.fps = 3;  // 333 ms periods
@@ -192,7 +192,7 @@ TEST_F(RealtimeTest, KeyframeCorrectionsMoveTheKeyframeNotTheLivePoseAndReintegr
 
 TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFrontend) {
   FrontendParams p;
-  p.refine_enabled = false;
+  p.refine.enabled = false;
   p.quality_enabled = false;
   p.feedback.enabled = true;
   // Drifting odometry, so that the window has something to correct.

@@ -21,7 +21,7 @@ TEST(TrackingRecovery, ABlackoutIsRelocalizedAfterTheDepthReturns) {
   const drv::SyntheticScene scene = drv::SyntheticScene::room();
   const int dark_first = 60, dark_last = 104;  // 2.0 s to 3.5 s
   FrontendParams p;
-  p.refine_enabled = false;
+  p.refine.enabled = false;
   Frontend fe(cam, p);
   fe.setInitialPose(truth.front().T_world_cam);
   int back_at = -1;

@@ -46,9 +46,9 @@ std::vector<std::pair<size_t, size_t>> associateStamps(const std::vector<int64_t
 }
 
 Eigen::Isometry3d alignRigid(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_dst_src = Eigen::Isometry3d::Identity();
   const size_t n = std::min(src.size(), dst.size());
-  if (n == 0) return T;
+  if (n == 0) return T_dst_src;
   Eigen::Vector3d mu_s = Eigen::Vector3d::Zero(), mu_d = Eigen::Vector3d::Zero();
   for (size_t i = 0; i < n; ++i) {
     mu_s += src[i];
@@ -61,9 +61,9 @@ Eigen::Isometry3d alignRigid(const std::vector<Eigen::Vector3d>& src, const std:
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(cov, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d S = Eigen::Matrix3d::Identity();
   if (svd.matrixU().determinant() * svd.matrixV().determinant() < 0) S(2, 2) = -1;
-  T.linear() = svd.matrixU() * S * svd.matrixV().transpose();
-  T.translation() = mu_d - T.linear() * mu_s;
-  return T;
+  T_dst_src.linear() = svd.matrixU() * S * svd.matrixV().transpose();
+  T_dst_src.translation() = mu_d - T_dst_src.linear() * mu_s;
+  return T_dst_src;
 }
 
 namespace {

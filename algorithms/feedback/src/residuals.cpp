@@ -31,8 +31,9 @@ bool refineBracket(BlockCache& cache, const Eigen::Vector3f& o, const Eigen::Vec
   return true;
 }
 
-bool finishHit(const Eigen::Isometry3d& T, const Eigen::Vector3d& q, double len, double t, const Eigen::Vector3d& dir,
-               Eigen::Vector3d n, const Eigen::Vector3f& rgb, double max_incidence_deg, SurfaceHit& hit) {
+bool finishHit(const Eigen::Isometry3d& T_world_cam, const Eigen::Vector3d& q, double len, double t,
+               const Eigen::Vector3d& dir, Eigen::Vector3d n, const Eigen::Vector3f& rgb, double max_incidence_deg,
+               SurfaceHit& hit) {
   const double nn = n.norm();
   if (!(nn > 1e-9)) return false;
   n /= nn;
@@ -42,7 +43,7 @@ bool finishHit(const Eigen::Isometry3d& T, const Eigen::Vector3d& q, double len,
   if (max_incidence_deg != cached_deg) cached_deg = max_incidence_deg, cached_cos = std::cos(max_incidence_deg * kDegToRad);
   if (-n.dot(dir) < cached_cos) return false;
   hit.z = t / len;
-  hit.point_world = T * (q * hit.z);
+  hit.point_world = T_world_cam * (q * hit.z);
   hit.normal_world = n;
   hit.intensity = (static_cast<double>(rgb.x()) + rgb.y() + rgb.z()) / (3.0 * 255.0);
   return true;
@@ -50,13 +51,13 @@ bool finishHit(const Eigen::Isometry3d& T, const Eigen::Vector3d& q, double len,
 
 }  // namespace
 
-bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3d& T, double u,
-                  double v, double z_hint, double max_incidence_deg, SurfaceHit& hit) {
+bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam,
+                  double u, double v, double z_hint, double max_incidence_deg, SurfaceHit& hit) {
   if (!(z_hint > 0)) return false;
   const Eigen::Vector3d q = pixelRay(cam, u, v);
   const double len = q.norm();
-  const Eigen::Vector3d dir_d = T.linear() * q / len;
-  const Eigen::Vector3f o = T.translation().cast<float>(), d = dir_d.cast<float>();
+  const Eigen::Vector3d dir_d = T_world_cam.linear() * q / len;
+  const Eigen::Vector3f o = T_world_cam.translation().cast<float>(), d = dir_d.cast<float>();
   const float vs = map.voxelSize(), mu = map.truncation();
   const auto flen = static_cast<float>(len), zh = static_cast<float>(z_hint);
   // DESIGN: first Newton steps from the hint. The hint is the observed
@@ -85,7 +86,7 @@ bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& ca
         if (cache.sampleWithGradient(o + t1 * d, 0.0f, s1, g1, c1)) {
           const float gd1 = g1.dot(d);
           if (g1.norm() > 1e-6f && gd1 < -0.2f * g1.norm()) {
-            return finishHit(T, q, len, t1 - s1 / gd1, dir_d, g1.cast<double>(), c1, max_incidence_deg, hit);
+            return finishHit(T_world_cam, q, len, t1 - s1 / gd1, dir_d, g1.cast<double>(), c1, max_incidence_deg, hit);
           }
         }
       }
@@ -121,28 +122,28 @@ bool castExplicit(BlockCache& cache, const TsdfMap& map, const PinholeCamera& ca
   float sdf = 0;
   Eigen::Vector3f grad, rgb;
   if (!cache.sampleWithGradient(o + t * d, 0.0f, sdf, grad, rgb)) return false;
-  return finishHit(T, q, len, t, dir_d, grad.cast<double>(), rgb, max_incidence_deg, hit);
+  return finishHit(T_world_cam, q, len, t, dir_d, grad.cast<double>(), rgb, max_incidence_deg, hit);
 }
 
-bool castImplicit(const ImplicitSurface& surface, const PinholeCamera& cam, const Eigen::Isometry3d& T, double u,
-                  double v, double z_hint, double max_incidence_deg, SurfaceHit& hit) {
+bool castImplicit(const ImplicitSurface& surface, const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam,
+                  double u, double v, double z_hint, double max_incidence_deg, SurfaceHit& hit) {
   if (!(z_hint > 0)) return false;
   const Eigen::Vector3d q = pixelRay(cam, u, v);
   const double len = q.norm();
-  const Eigen::Vector3d dir_d = T.linear() * q / len;
+  const Eigen::Vector3d dir_d = T_world_cam.linear() * q / len;
   float t = 0;
   Eigen::Vector3f n, rgb;
-  if (!surface.intersect(T.translation().cast<float>(), dir_d.cast<float>(), static_cast<float>(z_hint * len), t, n,
-                         rgb)) {
+  if (!surface.intersect(T_world_cam.translation().cast<float>(), dir_d.cast<float>(), static_cast<float>(z_hint * len),
+                         t, n, rgb)) {
     return false;
   }
-  return finishHit(T, q, len, t, dir_d, n.cast<double>(), rgb, max_incidence_deg, hit);
+  return finishHit(T_world_cam, q, len, t, dir_d, n.cast<double>(), rgb, max_incidence_deg, hit);
 }
 
-double depthResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v, double observed_depth,
-                     const SurfaceHit& hit, Vector6d& J) {
+double depthResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
+                     double observed_depth, const SurfaceHit& hit, Vector6d& J) {
   const Eigen::Vector3d q = pixelRay(cam, u, v);
-  const Eigen::Vector3d n_c = T.linear().transpose() * hit.normal_world;
+  const Eigen::Vector3d n_c = T_world_cam.linear().transpose() * hit.normal_world;
   const double nq = n_c.dot(q);
   // r = D - D^: minus the derivatives of D^ (see the header).
   J.head<3>() = -hit.z * n_c.cross(q) / nq;
@@ -150,16 +151,17 @@ double depthResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T, doubl
   return observed_depth - hit.z;
 }
 
-double incidenceCosine(const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v, const SurfaceHit& hit) {
+double incidenceCosine(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
+                       const SurfaceHit& hit) {
   const Eigen::Vector3d q = pixelRay(cam, u, v);
-  return std::abs((T.linear().transpose() * hit.normal_world).dot(q)) / q.norm();
+  return std::abs((T_world_cam.linear().transpose() * hit.normal_world).dot(q)) / q.norm();
 }
 
-double photoResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v,
+double photoResidual(const PinholeCamera& cam, const Eigen::Isometry3d& T_world_cam, double u, double v,
                      double observed_intensity, double gx, double gy, const SurfaceHit& hit, Vector6d& J) {
   (void)u;
   (void)v;  // the hit lies on the pixel's ray at the current pose
-  const Eigen::Vector3d x = T.inverse() * hit.point_world;  // the hit in the camera frame
+  const Eigen::Vector3d x = T_world_cam.inverse() * hit.point_world;  // the hit in the camera frame
   const double iz = 1.0 / x.z();
   // grad I . d pi / d x
   const Eigen::RowVector3d g(gx * cam.fx * iz, gy * cam.fy * iz, -(gx * cam.fx * x.x() + gy * cam.fy * x.y()) * iz * iz);

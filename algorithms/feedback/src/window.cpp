@@ -115,7 +115,7 @@ PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& f
   out.pixels = static_cast<int>(pixels.size());
   const std::vector<PixelSample> samples = gather(j, pixels);
   // In chunks of a window keyframe's size, each a slice the caller admits.
-  auto evaluate = [&](const Eigen::Isometry3d& T) {
+  auto evaluate = [&](const Eigen::Isometry3d& T_world_kf) {
     constexpr size_t kChunk = 2048;
     Linearization sum;
     std::vector<PixelSample> chunk;
@@ -126,7 +126,7 @@ PoseWindow::Verification PoseWindow::verify(size_t j, const Eigen::Isometry3d& f
       }
       chunk.assign(samples.begin() + static_cast<std::ptrdiff_t>(begin),
                    samples.begin() + static_cast<std::ptrdiff_t>(std::min(samples.size(), begin + kChunk)));
-      const Linearization l = linearizeSamples(j, T, maps, chunk, nullptr);
+      const Linearization l = linearizeSamples(j, T_world_kf, maps, chunk, nullptr);
       sum.cost += l.cost;
       sum.depth_cost += l.depth_cost;
       sum.photo_cost += l.photo_cost;
@@ -177,10 +177,10 @@ std::vector<PoseWindow::PixelSample> PoseWindow::gather(size_t j, const std::vec
   return out;
 }
 
-PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+PoseWindow::Linearization PoseWindow::linearize(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps,
                                                 const std::vector<Eigen::Vector2i>& pixels,
                                                 std::vector<PixelResult>* out) const {
-  return linearizeSamples(j, T, maps, gather(j, pixels), out);
+  return linearizeSamples(j, T_world_kf, maps, gather(j, pixels), out);
 }
 
 namespace {
@@ -191,9 +191,9 @@ namespace {
 struct ChannelWeights {
   double photo = 0, depth = 0;
 };
-void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen::Isometry3d& T, double u, double v,
-                 double D, double I, double gx, double gy, const SurfaceHit& hit, double cosine, ChannelWeights lambda,
-                 int& n_photo, int& n_depth, PoseWindow::Linearization& L, float& worst) {
+void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen::Isometry3d& T_world_kf, double u,
+                 double v, double D, double I, double gx, double gy, const SurfaceHit& hit, double cosine,
+                 ChannelWeights lambda, int& n_photo, int& n_depth, PoseWindow::Linearization& L, float& worst) {
   Vector6d J;
   // A residual within its gate: into H, b and the cost (and the channel's
   // share of it), counted, and its weighted size kept for Omega's top set.
@@ -206,7 +206,7 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
     worst = std::max(worst, static_cast<float>(std::sqrt(lambda_c) * std::abs(r) / sigma));
   };
   if (lambda.depth > 0) {
-    double r = depthResidual(cam, T, u, v, D, hit, J);
+    double r = depthResidual(cam, T_world_kf, u, v, D, hit, J);
     if (p.depth_point_to_plane) {
       // The along-ray residual times the incidence cosine (held fixed in
       // the step, as an IRLS weight): the distance to the map's tangent plane.
@@ -216,7 +216,7 @@ void addChannels(const FeedbackParams& p, const PinholeCamera& cam, const Eigen:
     take(r, p.depth_gate_m, p.depth_sigma_m, lambda.depth, L.depth_cost, n_depth);
   }
   if (lambda.photo > 0 && gx * gx + gy * gy >= p.min_gradient * p.min_gradient) {
-    const double r = photoResidual(cam, T, u, v, I, gx, gy, hit, J);
+    const double r = photoResidual(cam, T_world_kf, u, v, I, gx, gy, hit, J);
     take(r, p.photo_gate, p.photo_sigma, lambda.photo, L.photo_cost, n_photo);
   }
 }
@@ -235,18 +235,18 @@ bool bilinear(const cv::Mat& img, double x, double y, double& out) {
 }  // namespace
 
 PoseWindow::Linearization PoseWindow::linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast,
-                                                        const Eigen::Isometry3d& T, const FeedbackMaps& maps,
-                                                        const std::vector<Eigen::Vector2i>& pixels,
-                                                        int repeat) const {
+                                                        const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps,
+                                                        const std::vector<Eigen::Vector2i>& pixels, int repeat) const {
   const std::vector<PixelSample> samples = gather(j, pixels);
   std::vector<CachedHit> hits;
   linearizeSamples(j, T_cast, maps, samples, nullptr, &hits);
   Linearization L;
-  for (int r = 0; r < std::max(1, repeat); ++r) L = linearizeCached(j, T, samples, hits, nullptr);
+  for (int r = 0; r < std::max(1, repeat); ++r) L = linearizeCached(j, T_world_kf, samples, hits, nullptr);
   return L;
 }
 
-PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Isometry3d& T_world_kf,
+                                                       const FeedbackMaps& maps,
                                                        const std::vector<PixelSample>& samples,
                                                        std::vector<PixelResult>* out,
                                                        std::vector<CachedHit>* hits) const {
@@ -266,8 +266,8 @@ PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Is
     if (!(D > 0)) continue;
     float worst = 0;
     auto take = [&](const SurfaceHit& hit, bool implicit) {
-      const double c = p.depth_point_to_plane ? incidenceCosine(cam, T, u, v, hit) : 1.0;
-      addChannels(p, cam, T, u, v, D, px.intensity, px.gx, px.gy, hit, c, implicit ? implicit_w : explicit_w,
+      const double c = p.depth_point_to_plane ? incidenceCosine(cam, T_world_kf, u, v, hit) : 1.0;
+      addChannels(p, cam, T_world_kf, u, v, D, px.intensity, px.gx, px.gy, hit, c, implicit ? implicit_w : explicit_w,
                   implicit ? L.counts.photo_implicit : L.counts.photo_explicit,
                   implicit ? L.counts.depth_implicit : L.counts.depth_explicit, L, worst);
       if (hits) {
@@ -276,14 +276,14 @@ PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Is
       }
     };
     SurfaceHit hit;
-    if (castExplicit(cache, *maps.tsdf, cam, T, u, v, D, p.max_incidence_deg, hit)) {
+    if (castExplicit(cache, *maps.tsdf, cam, T_world_kf, u, v, D, p.max_incidence_deg, hit)) {
       take(hit, false);
       if (out) (*out)[i].hint_z = static_cast<float>(hit.z);
       // Implicit channels where the ray meets a refined region's field.
       for (const ImplicitSurface* surface : maps.implicit) {
         if (!surface || !surface->box().contains(hit.point_world.cast<float>())) continue;
         SurfaceHit ih;
-        if (castImplicit(*surface, cam, T, u, v, hit.z, p.max_incidence_deg, ih)) take(ih, true);
+        if (castImplicit(*surface, cam, T_world_kf, u, v, hit.z, p.max_incidence_deg, ih)) take(ih, true);
         break;  // one field per ray
       }
     }
@@ -294,7 +294,7 @@ PoseWindow::Linearization PoseWindow::linearizeSamples(size_t j, const Eigen::Is
   return L;
 }
 
-PoseWindow::Linearization PoseWindow::linearizeCached(size_t j, const Eigen::Isometry3d& T,
+PoseWindow::Linearization PoseWindow::linearizeCached(size_t j, const Eigen::Isometry3d& T_world_kf,
                                                       const std::vector<PixelSample>& samples,
                                                       const std::vector<CachedHit>& hits,
                                                       std::vector<PixelResult>* out) const {
@@ -306,8 +306,8 @@ PoseWindow::Linearization PoseWindow::linearizeCached(size_t j, const Eigen::Iso
   const FeedbackParams& p = params_;
   const ChannelWeights explicit_w{p.lambda_photo_explicit, p.lambda_depth_explicit};
   const ChannelWeights implicit_w{p.lambda_photo_implicit, p.lambda_depth_implicit};
-  const Eigen::Matrix3d Rt = T.linear().transpose();
-  const Eigen::Isometry3d T_inv = T.inverse();
+  const Eigen::Matrix3d Rt = T_world_kf.linear().transpose();
+  const Eigen::Isometry3d T_inv = T_world_kf.inverse();
   const double min_gradient2 = p.min_gradient * p.min_gradient;
   for (const CachedHit& h : hits) {
     if (h.sample >= samples.size()) continue;
@@ -339,7 +339,7 @@ PoseWindow::Linearization PoseWindow::linearizeCached(size_t j, const Eigen::Iso
       }
     }
     float worst = out ? (*out)[h.sample].residual : 0.0f;
-    addChannels(p, cam, T, u, v, px.depth, I, gx, gy, hit, h.cosine, h.implicit ? implicit_w : explicit_w,
+    addChannels(p, cam, T_world_kf, u, v, px.depth, I, gx, gy, hit, h.cosine, h.implicit ? implicit_w : explicit_w,
                 h.implicit ? L.counts.photo_implicit : L.counts.photo_explicit,
                 h.implicit ? L.counts.depth_implicit : L.counts.depth_explicit, L, worst);
     if (out) (*out)[h.sample].residual = worst;
@@ -372,9 +372,9 @@ double PoseWindow::relativeFactor(size_t a, const Eigen::Isometry3d& Ta, const E
   return 0.5 * e.dot(info * e);
 }
 
-double PoseWindow::priorCost(const Eigen::Isometry3d& T, Matrix6d* H, Vector6d* b) const {
+double PoseWindow::priorCost(const Eigen::Isometry3d& T_world_kf, Matrix6d* H, Vector6d* b) const {
   if (!has_prior_) return 0.0;
-  const Vector6d d = logSE3(prior_T_lin_.inverse() * T);
+  const Vector6d d = logSE3(prior_T_lin_.inverse() * T_world_kf);
   if (H && b) {
     *H = prior_H_;
     *b = prior_H_ * d + prior_b_;
@@ -466,22 +466,23 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::shared_ptr<const std::vector<CachedHit>> base_hits, extra_hits;  // shared by trials
   };
   // Casting the rays into the maps (the costly evaluation).
-  auto evalBase = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
+  auto evalBase = [&](size_t j, const Eigen::Isometry3d& T_world_kf, KfEval& e) {
     auto hits = std::make_shared<std::vector<CachedHit>>();
-    e.base = linearizeSamples(j, T, maps, slots_[j].base_samples, nullptr, hits.get());
+    e.base = linearizeSamples(j, T_world_kf, maps, slots_[j].base_samples, nullptr, hits.get());
     e.base_hits = std::move(hits);
     ++rep.evaluations;
   };
-  auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T, KfEval& e) {
+  auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T_world_kf, KfEval& e) {
     auto hits = std::make_shared<std::vector<CachedHit>>();
-    e.extra = linearizeSamples(j, T, maps, slots_[j].extra_samples, &e.extra_pixels, hits.get());
+    e.extra = linearizeSamples(j, T_world_kf, maps, slots_[j].extra_samples, &e.extra_pixels, hits.get());
     e.extra_hits = std::move(hits);
   };
   // The same from the hits of `from` (their tangent planes), no casting.
-  auto evalCached = [&](size_t j, const Eigen::Isometry3d& T, const KfEval& from, KfEval& e) {
+  auto evalCached = [&](size_t j, const Eigen::Isometry3d& T_world_kf, const KfEval& from, KfEval& e) {
     static const std::vector<CachedHit> kNone;
-    e.base = linearizeCached(j, T, slots_[j].base_samples, from.base_hits ? *from.base_hits : kNone, nullptr);
-    e.extra = linearizeCached(j, T, slots_[j].extra_samples, from.extra_hits ? *from.extra_hits : kNone, &e.extra_pixels);
+    e.base = linearizeCached(j, T_world_kf, slots_[j].base_samples, from.base_hits ? *from.base_hits : kNone, nullptr);
+    e.extra = linearizeCached(j, T_world_kf, slots_[j].extra_samples, from.extra_hits ? *from.extra_hits : kNone,
+                              &e.extra_pixels);
     e.base_hits = from.base_hits;
     e.extra_hits = from.extra_hits;
   };

@@ -127,11 +127,11 @@ PoseGraphReport PoseGraph::optimize(uint32_t fixed, int max_iterations) {
     return report;
   }
   std::map<uint32_t, NodeBlock> blocks;
-  for (const auto& [id, T] : nodes_) {
+  for (const auto& [id, T_world_kf] : nodes_) {
     NodeBlock b;
-    const Eigen::Quaterniond q(T.linear());
+    const Eigen::Quaterniond q(T_world_kf.linear());
     for (int k = 0; k < 4; ++k) b.q[k] = q.coeffs()[k];
-    for (int k = 0; k < 3; ++k) b.t[k] = T.translation()[k];
+    for (int k = 0; k < 3; ++k) b.t[k] = T_world_kf.translation()[k];
     blocks[id] = b;
   }
   ceres::Problem::Options options;
@@ -170,10 +170,10 @@ PoseGraphReport PoseGraph::optimize(uint32_t fixed, int max_iterations) {
   for (auto& [id, b] : blocks) {
     Eigen::Quaterniond q(b.q[3], b.q[0], b.q[1], b.q[2]);
     q.normalize();
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = q.toRotationMatrix();
-    T.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
-    nodes_[id] = T;
+    Eigen::Isometry3d T_world_kf = Eigen::Isometry3d::Identity();
+    T_world_kf.linear() = q.toRotationMatrix();
+    T_world_kf.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
+    nodes_[id] = T_world_kf;
   }
   for (const PoseGraphFactor& f : factors_) report.max_whitened_error = std::max(report.max_whitened_error, whitenedError(f));
   report.solve_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

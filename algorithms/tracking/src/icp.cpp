@@ -250,9 +250,9 @@ HXMAP_SIMD_CLONES void geometricRows(int k, float huber, GeometricRows& g) {
   }
 }
 
-void accumulate(const FramePoints& points, const ModelView& model, const Eigen::Isometry3f& T,
+void accumulate(const FramePoints& points, const ModelView& model, const Eigen::Isometry3f& T_world_cam,
                 const TrackingParams& params, Accumulation& acc) {
-  const RigidF Tw(T), T_ref(model.T_world_cam.inverse() * T);
+  const RigidF Tw(T_world_cam), T_ref(model.T_world_cam.inverse() * T_world_cam);
   const float max_d2 = static_cast<float>(params.max_correspondence_distance_m * params.max_correspondence_distance_m);
   const float cos_max = static_cast<float>(std::cos(params.max_normal_angle_deg * M_PI / 180.0));
   const float huber = static_cast<float>(params.huber_delta_m);
@@ -431,11 +431,11 @@ HXMAP_SIMD_CLONES void photometricRows(int n, const float R[9], float fx, float 
 
 // Photometric residuals r = I_cur(pi(T^-1 y)) - I_ref of reference points y
 // in the world, added to acc.
-void accumulatePhotometric(const FrameLevel& cur, const RefPoints& points, const Eigen::Isometry3f& T,
+void accumulatePhotometric(const FrameLevel& cur, const RefPoints& points, const Eigen::Isometry3f& T_world_cam,
                            const TrackingParams& params, Accumulation& acc) {
-  const RigidF T_cur_world(T.inverse());
+  const RigidF T_cur_world(T_world_cam.inverse());
   float R[9];
-  for (int i = 0; i < 9; ++i) R[i] = T.linear()(i / 3, i % 3);
+  for (int i = 0; i < 9; ++i) R[i] = T_world_cam.linear()(i / 3, i % 3);
   const float fx = static_cast<float>(cur.camera.fx), fy = static_cast<float>(cur.camera.fy);
   const float k[4] = {fx, fy, static_cast<float>(cur.camera.cx), static_cast<float>(cur.camera.cy)};
   const float scale = static_cast<float>(params.photometric_scale_m);
@@ -493,7 +493,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   const int finest = std::clamp(frame.finest, 0, levels - 1);
   result.model_pixels = model[finest].valid_pixels;
   const int iterations[3] = {params.iterations_finest, params.iterations_middle, params.iterations_coarsest};
-  Eigen::Isometry3d T = T_init;
+  Eigen::Isometry3d T_world_cam = T_init;
   const bool use_photometric =
       reference.frame != nullptr && params.photometric_scale_m > 0 && frame.has_color && reference.frame->has_color;
   Accumulation last;  // the finest level's last point-to-plane evaluation
@@ -523,7 +523,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
     }
     for (int it = 0; it < iters; ++it) {
       Accumulation acc;
-      const Eigen::Isometry3f Tf = T.cast<float>();
+      const Eigen::Isometry3f Tf = T_world_cam.cast<float>();
       accumulateBands(parallel, acc,
                       [&](int c, Accumulation& a) { accumulate(frame_points[c], model[l], Tf, params, a); });
       ++result.iterations;
@@ -535,9 +535,9 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       if (photometric) {
         const Eigen::Isometry3d T_depth_color =
             reference.color_offset_ratio != 0.0
-                ? expSE3(logSE3(reference.T_world_previous.inverse() * T) * reference.color_offset_ratio)
+                ? expSE3(logSE3(reference.T_world_previous.inverse() * T_world_cam) * reference.color_offset_ratio)
                 : reference.T_depth_color;
-        const Eigen::Isometry3f Tf_color = (T * T_depth_color).cast<float>();
+        const Eigen::Isometry3f Tf_color = (T_world_cam * T_depth_color).cast<float>();
         accumulateBands(parallel, acc, [&](int c, Accumulation& a) {
           accumulatePhotometric(frame.levels[pl], ref_points[c], Tf_color, params, a);
         });
@@ -549,7 +549,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
       Eigen::LDLT<Matrix6d> ldlt(acc.eq.H());
       const Vector6d xi = -ldlt.solve(acc.eq.b());
       if (!xi.allFinite()) break;
-      T = expSE3(xi) * T;
+      T_world_cam = expSE3(xi) * T_world_cam;
       if (xi.head<3>().norm() < params.convergence_rotation_rad &&
           xi.tail<3>().norm() < params.convergence_translation_m) {
         break;
@@ -564,7 +564,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   // finest level has iterated (TUM slice ATE unchanged, 0.53 cm).
   const int final_stride = std::max(1, params.icp_stride_finest);
   if (!have_last) {
-    const Eigen::Isometry3f Tf = T.cast<float>();
+    const Eigen::Isometry3f Tf = T_world_cam.cast<float>();
     const FrameBands points = gatherFrameBands(frame.levels[finest], final_stride, parallel);
     accumulateBands(parallel, last,
                     [&](int c, Accumulation& a) { accumulate(points[c], model[finest], Tf, params, a); });
@@ -580,7 +580,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   Eigen::SelfAdjointEigenSolver<Matrix6d> eig(result.information);
   const double emax = eig.eigenvalues().maxCoeff();
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
-  const Eigen::Isometry3d motion = T_init.inverse() * T;
+  const Eigen::Isometry3d motion = T_init.inverse() * T_world_cam;
   const int reference_pixels = std::max(1, std::min(result.model_pixels, frame.valid_pixels >> (2 * finest)));
   const double inlier_ratio = static_cast<double>(last.inliers) / reference_pixels;
   if (last.inliers < params.min_inliers || inlier_ratio < params.min_inlier_ratio) {
@@ -595,7 +595,7 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
                      std::to_string(last.inliers) + " associations within the gate)";
   } else {
     result.ok = true;
-    result.T_world_cam = T;
+    result.T_world_cam = T_world_cam;
     if (result.consistent_ratio < params.min_consistent_ratio) {
       result.degraded = percent(result.consistent_ratio) + " of " + std::to_string(last.inliers) +
                         " associations within the noise gate";
@@ -609,15 +609,15 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
 std::vector<ModelView> frameAsModel(const PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam) {
   std::vector<ModelView> out;
   if (frame.levels.empty()) return out;
-  const Eigen::Isometry3f T = T_world_cam.cast<float>();
-  const Eigen::Matrix3f R = T.linear();
+  const Eigen::Isometry3f T_world_cam_f = T_world_cam.cast<float>();
+  const Eigen::Matrix3f R = T_world_cam_f.linear();
   const int finest = std::clamp(frame.finest, 0, static_cast<int>(frame.levels.size()) - 1);
   out.resize(frame.levels.size());
   for (size_t l = static_cast<size_t>(finest); l < frame.levels.size(); ++l) {
     const FrameLevel& fl = frame.levels[l];
     ModelView& m = out[l];
     m.camera = fl.camera;
-    m.T_world_cam = T;
+    m.T_world_cam = T_world_cam_f;
     m.depth = fl.depth;
     m.vertex_world.create(fl.vertex.size(), CV_32FC3);
     m.normal_world.create(fl.normal.size(), CV_32FC3);
@@ -633,7 +633,7 @@ std::vector<ModelView> frameAsModel(const PreprocessedFrame& frame, const Eigen:
           wn[u] = cv::Vec3f(0, 0, 0);
           continue;
         }
-        const Eigen::Vector3f x = T * Eigen::Vector3f(pv[u][0], pv[u][1], pv[u][2]);
+        const Eigen::Vector3f x = T_world_cam_f * Eigen::Vector3f(pv[u][0], pv[u][1], pv[u][2]);
         const Eigen::Vector3f n = R * Eigen::Vector3f(pn[u][0], pn[u][1], pn[u][2]);
         wv[u] = cv::Vec3f(x.x(), x.y(), x.z());
         wn[u] = cv::Vec3f(n.x(), n.y(), n.z());

@@ -468,12 +468,12 @@ Eigen::Isometry3d syntheticPose(const SyntheticParams& params, double t) {
   const Eigen::Vector3d forward = (target - eye).normalized();
   const Eigen::Vector3d right = forward.cross(Eigen::Vector3d::UnitZ()).normalized();
   const Eigen::Vector3d down = forward.cross(right);
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear().col(0) = right;
-  T.linear().col(1) = down;
-  T.linear().col(2) = forward;
-  T.translation() = eye;
-  return T;
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  T_world_cam.linear().col(0) = right;
+  T_world_cam.linear().col(1) = down;
+  T_world_cam.linear().col(2) = forward;
+  T_world_cam.translation() = eye;
+  return T_world_cam;
 }
 
 bool hasColorEffects(const SyntheticParams& params) {
@@ -540,13 +540,13 @@ void renderColorWithEffects(const SyntheticScene& scene, const alg::PinholeCamer
       for (int u = 0; u < cam.width; ++u) {
         const Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
         Vector3f sum = Vector3f::Zero();
-        for (const Eigen::Isometry3f& T : poses) {
-          const Vector3f dir = (T.linear() * ray_cam).normalized();
+        for (const Eigen::Isometry3f& T_world_cam : poses) {
+          const Vector3f dir = (T_world_cam.linear() * ray_cam).normalized();
           float t = 0;
           Vector3f n;
           int k = -1;
-          if (!scene.raycast(T.translation(), dir, t, n, k)) continue;
-          const alg::Color3 c = scene.color(T.translation() + t * dir, n, k);
+          if (!scene.raycast(T_world_cam.translation(), dir, t, n, k)) continue;
+          const alg::Color3 c = scene.color(T_world_cam.translation() + t * dir, n, k);
           sum += Vector3f(c[0], c[1], c[2]);
         }
         sum *= gain / static_cast<float>(samples);
@@ -567,13 +567,13 @@ RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera&
   out.depth_true.create(cam.height, cam.width, CV_32F);
   cv::Mat cosine(cam.height, cam.width, CV_32F);
   cv::Mat noise_gain(cam.height, cam.width, CV_32F, cv::Scalar(1.0f));
-  const Eigen::Isometry3f T = T_world_cam.cast<float>();
-  const Vector3f origin = T.translation();
+  const Eigen::Isometry3f T_world_cam_f = T_world_cam.cast<float>();
+  const Vector3f origin = T_world_cam_f.translation();
   parallel(static_cast<size_t>(cam.height), [&](size_t v0, size_t v1) {
     for (int v = static_cast<int>(v0); v < static_cast<int>(v1); ++v) {
       for (int u = 0; u < cam.width; ++u) {
         const Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-        const Vector3f dir = (T.linear() * ray_cam).normalized();
+        const Vector3f dir = (T_world_cam_f.linear() * ray_cam).normalized();
         float t = 0;
         Vector3f n;
         int k = -1;

@@ -10,7 +10,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "hxmap/runtime/spsc_ring.hpp"
+#include "hxmap/ring/spsc_ring.hpp"
 
 #ifdef HXMAP_HAVE_OPENNI2
 #include "hxmap/openni2/openni2.hpp"

@@ -31,11 +31,11 @@ Seq view(const std::vector<T>& v) {
 }
 
 void fillPose(geometry_msgs_msg_dds__PoseStamped_& w, int64_t stamp_ns, const std::string& frame_id,
-              const Eigen::Isometry3d& T) {
+              const Eigen::Isometry3d& T_world_cam) {
   w.header.stamp = toTime(stamp_ns);
   w.header.frame_id = const_cast<char*>(frame_id.c_str());
-  const Eigen::Vector3d t = T.translation();
-  const Eigen::Quaterniond q(T.linear());
+  const Eigen::Vector3d t = T_world_cam.translation();
+  const Eigen::Quaterniond q(T_world_cam.linear());
   w.pose.position = {t.x(), t.y(), t.z()};
   w.pose.orientation = {q.x(), q.y(), q.z(), q.w()};
 }

@@ -72,7 +72,7 @@ Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& param
 void Frontend::warmUp() {
   FrontendParams p = params_;
   p.quality_enabled = false;
-  p.refine_enabled = false;
+  p.refine.enabled = false;
   p.feedback.enabled = false;
   Frontend scratch(camera_, p, parallel_);
   RgbdFrame f;
@@ -234,7 +234,7 @@ void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& 
   if (params_.quality_enabled) {
     StageTimer t(r.stage_ms[kKeyframe]);
     scoreKeyframe(r);
-    if (params_.refine_enabled) {
+    if (params_.refine.enabled) {
       keepKeyframeImages(r.keyframe_id);
       makeRefineJobs(r.keyframe_id);
     }
@@ -273,28 +273,28 @@ void Frontend::fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found)
   const double span = static_cast<double>(stamp_ns - a.stamp_ns);
   for (size_t i = first; i < trajectory_.size(); ++i) {
     const double s = span > 0 ? std::clamp(static_cast<double>(trajectory_[i].stamp_ns - a.stamp_ns) / span, 0.0, 1.0) : 1.0;
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = qa.slerp(s, qb).toRotationMatrix();
-    T.translation() = (1 - s) * a.T_world_cam.translation() + s * T_found.translation();
-    trajectory_[i].T_world_cam = T;
+    Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+    T_world_cam.linear() = qa.slerp(s, qb).toRotationMatrix();
+    T_world_cam.translation() = (1 - s) * a.T_world_cam.translation() + s * T_found.translation();
+    trajectory_[i].T_world_cam = T_world_cam;
     ++tracking_counters_.interpolated_poses;
   }
 }
 
-void Frontend::followPose(const Eigen::Isometry3d& T, const alg::PreprocessedFrame& pre) {
+void Frontend::followPose(const Eigen::Isometry3d& T_world_cam, const alg::PreprocessedFrame& pre) {
   if (initialized_ && velocity_valid_) {
-    velocity_ = T_last_.inverse() * T;
+    velocity_ = T_last_.inverse() * T_world_cam;
     velocity_dt_s_ = static_cast<double>(pre.depth_stamp_ns - previous_depth_ns_) * 1e-9;
   } else {
     velocity_.setIdentity();
     velocity_dt_s_ = 0;
   }
   velocity_valid_ = true;
-  T_last_ = T;
+  T_last_ = T_world_cam;
   previous_frame_ = pre;
   previous_depth_ns_ = pre.depth_stamp_ns;
-  T_previous_ = T;
-  T_previous_color_ = T * colorOffset(pre);
+  T_previous_ = T_world_cam;
+  T_previous_color_ = T_world_cam * colorOffset(pre);
 }
 
 Eigen::Isometry3d Frontend::colorOffset(const alg::PreprocessedFrame& f) const {
@@ -329,7 +329,8 @@ bool betterTrack(const alg::IcpResult& a, const alg::IcpResult& b) {
 }
 }  // namespace
 
-alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T) {
+alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp,
+                                      Eigen::Isometry3d& T_world_cam) {
   alg::TrackingAttempts attempts;
   attempts.enough_depth = pre.valid_pixels >= minValidPixels();
   if (!attempts.enough_depth) {
@@ -405,12 +406,12 @@ alg::TrackingDecision Frontend::track(const alg::PreprocessedFrame& pre, alg::Ic
     d.reason += "; relocalization: " + relocalization_failure;
   }
   if (d.source == alg::PoseSource::kRelocalization) {
-    T = relocalized.T_world_cam;
+    T_world_cam = relocalized.T_world_cam;
     icp = relocalized;
   }
-  if (d.source == alg::PoseSource::kModel) T = icp.T_world_cam;
+  if (d.source == alg::PoseSource::kModel) T_world_cam = icp.T_world_cam;
   if (d.source == alg::PoseSource::kOdometry) {
-    T = odometry.T_world_cam;
+    T_world_cam = odometry.T_world_cam;
     icp = odometry;
   }
   return d;
@@ -684,7 +685,7 @@ void Frontend::keepKeyframeImages(uint32_t id) {
   // oldest of those), never the newest: with the quality map's blocks
   // keeping views spread in direction, the images an ROI trains on reach
   // back past the last few keyframes.
-  while (static_cast<int>(keyframe_images_.size()) > std::max(1, params_.keyframe_images)) {
+  while (static_cast<int>(keyframe_images_.size()) > std::max(1, params_.refine.keyframe_images)) {
     auto out = keyframe_images_.begin();
     uint32_t fewest = quality_.keyframeReferences(out->id);
     for (auto it = std::next(out); it != std::prev(keyframe_images_.end()) && fewest > 0; ++it) {
@@ -700,9 +701,9 @@ void Frontend::keepKeyframeImages(uint32_t id) {
 
 void Frontend::makeRefineJobs(uint32_t keyframe_id) {
   int made = 0;
-  const auto cooldown = static_cast<uint32_t>(std::max(0, params_.refine_cooldown_keyframes));
-  const int limit =
-      refine_budget_ < 0 ? params_.max_jobs_per_keyframe : std::min(params_.max_jobs_per_keyframe, refine_budget_);
+  const auto cooldown = static_cast<uint32_t>(std::max(0, params_.refine.cooldown_keyframes));
+  const int limit = refine_budget_ < 0 ? params_.refine.max_jobs_per_keyframe
+                                       : std::min(params_.refine.max_jobs_per_keyframe, refine_budget_);
   for (const alg::Roi& roi : rois_) {
     if (made >= limit) break;
     size_t busy = 0;
@@ -717,7 +718,7 @@ void Frontend::makeRefineJobs(uint32_t keyframe_id) {
         if (k.id == id) job.keyframes.push_back(k);  // headers: the images are shared, never written
       }
     }
-    if (job.keyframes.empty() || static_cast<int>(job.keyframes.size()) < params_.min_job_keyframes) continue;
+    if (job.keyframes.empty() || static_cast<int>(job.keyframes.size()) < params_.refine.min_job_keyframes) continue;
     job.id = next_job_id_++;
     job.keyframe_id = keyframe_id;
     job.map_epoch = map_epoch_;
@@ -728,7 +729,7 @@ void Frontend::makeRefineJobs(uint32_t keyframe_id) {
     ++jobs_made_;
     ++made;
   }
-  while (static_cast<int>(pending_jobs_.size()) > std::max(1, params_.max_pending_jobs)) {
+  while (static_cast<int>(pending_jobs_.size()) > std::max(1, params_.refine.max_pending_jobs)) {
     pending_jobs_.erase(pending_jobs_.begin());
     ++jobs_dropped_;
   }

@@ -1,4 +1,4 @@
-#include "hxmap/runtime/realtime.hpp"
+#include "hxmap/realtime/realtime.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -198,7 +198,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   const int workers = std::max(0, options.refine_workers), nice = options.background_nice;
 
   // The stages, from the last to the first (each knows where its output goes).
-  RefinePool refine(ctx, burning ? 0 : workers, frontend.params().implicit, nice);
+  RefinePool refine(ctx, burning ? 0 : workers, frontend.params().refine.implicit, nice);
   stages::BurnLoad burn(ctx, burning ? workers : 0, options.burn_slice_ms, options.burn_slices_per_job, nice, 3);
   FeedbackStage feedback(ctx, frontend, sp.max_feedback_effort, nice, 3 + workers);
   LoopStage loop(ctx, frontend.detachLoopCloser(), options.loop_parallel, nice, 3 + workers + 1);

@@ -21,11 +21,11 @@
 #include <vector>
 
 #include "hxmap/frontend/frontend.hpp"
-#include "hxmap/runtime/doorbell.hpp"
-#include "hxmap/runtime/realtime.hpp"
-#include "hxmap/runtime/scheduler.hpp"
-#include "hxmap/runtime/spsc_ring.hpp"
-#include "hxmap/runtime/trace.hpp"
+#include "hxmap/realtime/realtime.hpp"
+#include "hxmap/ring/doorbell.hpp"
+#include "hxmap/ring/spsc_ring.hpp"
+#include "hxmap/scheduler/scheduler.hpp"
+#include "hxmap/scheduler/trace.hpp"
 
 namespace hxmap::rt::stages {
 

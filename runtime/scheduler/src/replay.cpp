@@ -1,10 +1,10 @@
-#include "hxmap/runtime/replay.hpp"
+#include "hxmap/scheduler/replay.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
-#include "hxmap/runtime/latest_slot.hpp"
+#include "hxmap/ring/latest_slot.hpp"
 
 namespace hxmap::rt {
 

@@ -1,4 +1,4 @@
-#include "hxmap/runtime/scheduler.hpp"
+#include "hxmap/scheduler/scheduler.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "hxmap/runtime/trace.hpp"
+#include "hxmap/scheduler/trace.hpp"
 
 #include <algorithm>
 #include <fstream>

@@ -184,23 +184,24 @@ TEST(FeedbackResiduals, ImplicitDepthJacobianComesFromTheFieldsGradient) {
   const PinholeCamera cam{200, 200, 119.5, 89.5, 240, 180, {0, 0, 0, 0, 0}};
   const PlaneSurface plane(Eigen::AlignedBox3f(Eigen::Vector3f(-5, -5, -1), Eigen::Vector3f(5, 5, 1)), 0.0f);
   // A camera 1.5 m above the floor looking down and forward.
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitX()))
-                   .toRotationMatrix();
-  T.translation() = Eigen::Vector3d(0.1, -0.2, 1.5);
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  T_world_cam.linear() =
+      (Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitX()))
+          .toRotationMatrix();
+  T_world_cam.translation() = Eigen::Vector3d(0.1, -0.2, 1.5);
   int checked = 0;
   for (int v = 5; v < 180; v += 20) {
     for (int u = 5; u < 240; u += 20) {
       SurfaceHit hit;
-      ASSERT_TRUE(castImplicit(plane, cam, T, u, v, 2.0, 89, hit));
+      ASSERT_TRUE(castImplicit(plane, cam, T_world_cam, u, v, 2.0, 89, hit));
       Vector6d J;
-      depthResidual(cam, T, u, v, 2.0, hit, J);
+      depthResidual(cam, T_world_cam, u, v, 2.0, hit, J);
       Vector6d J_fd;
       const double h = 1e-3;  // the field answers in float: a step well above its rounding
       for (int k = 0; k < 6; ++k) {
         SurfaceHit hp, hm;
-        ASSERT_TRUE(castImplicit(plane, cam, T * expSE3(h * unit(k)), u, v, 2.0, 89, hp));
-        ASSERT_TRUE(castImplicit(plane, cam, T * expSE3(-h * unit(k)), u, v, 2.0, 89, hm));
+        ASSERT_TRUE(castImplicit(plane, cam, T_world_cam * expSE3(h * unit(k)), u, v, 2.0, 89, hp));
+        ASSERT_TRUE(castImplicit(plane, cam, T_world_cam * expSE3(-h * unit(k)), u, v, 2.0, 89, hm));
         J_fd(k) = (hm.z - hp.z) / (2 * h);
       }
       EXPECT_LT((J - J_fd).norm(), 2e-3 * std::max(1.0, J.norm())) << J.transpose() << "\n" << J_fd.transpose();
@@ -416,10 +417,10 @@ TEST_F(FeedbackTest, TangentPlanesReproduceTheCastAndFollowItNearby) {
   p.window = 2;
   PoseWindow window(p);
   window.add(keyframe(10), maps());
-  const Eigen::Isometry3d T = window.keyframes()[0].T_world_cam;
+  const Eigen::Isometry3d T_world_kf = window.keyframes()[0].T_world_cam;
   const std::vector<Eigen::Vector2i>& pixels = window.basePixels(0);
-  const auto cast = window.linearize(0, T, maps(), pixels);
-  const auto planes = window.linearizeOnPlanes(0, T, T, maps(), pixels);
+  const auto cast = window.linearize(0, T_world_kf, maps(), pixels);
+  const auto planes = window.linearizeOnPlanes(0, T_world_kf, T_world_kf, maps(), pixels);
   ASSERT_GT(cast.counts.depth_explicit, 500);
   EXPECT_EQ(planes.counts.depth_explicit, cast.counts.depth_explicit);
   EXPECT_EQ(planes.counts.photo_explicit, cast.counts.photo_explicit);
@@ -431,9 +432,9 @@ TEST_F(FeedbackTest, TangentPlanesReproduceTheCastAndFollowItNearby) {
   // does for a fresh cast, and the gradients point the same way.
   Vector6d xi;
   xi << 0.002, -0.002, 0.002, 0.002, 0.001, -0.002;
-  const Eigen::Isometry3d T2 = T * expSE3(xi);
+  const Eigen::Isometry3d T2 = T_world_kf * expSE3(xi);
   const auto fresh = window.linearize(0, T2, maps(), pixels);
-  const auto moved = window.linearizeOnPlanes(0, T, T2, maps(), pixels);
+  const auto moved = window.linearizeOnPlanes(0, T_world_kf, T2, maps(), pixels);
   const double rise_fresh = fresh.cost - cast.cost, rise_planes = moved.cost - cast.cost;
   std::printf("cost at the cast %.1f; 3 mm away: fresh cast %.1f, planes %.1f; gradient cosine %.4f\n", cast.cost,
               fresh.cost, moved.cost, moved.b.normalized().dot(fresh.b.normalized()));

@@ -31,32 +31,32 @@ Eigen::Isometry3f lookAt(const Eigen::Vector3f& eye, const Eigen::Vector3f& targ
   const Eigen::Vector3f z = (target - eye).normalized();
   const Eigen::Vector3f x = Eigen::Vector3f::UnitY().cross(z).normalized() * -1.0f;
   const Eigen::Vector3f y = z.cross(x);
-  Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
-  T.linear() << x, y, z;
-  T.translation() = eye;
-  return T;
+  Eigen::Isometry3f T_world_cam = Eigen::Isometry3f::Identity();
+  T_world_cam.linear() << x, y, z;
+  T_world_cam.translation() = eye;
+  return T_world_cam;
 }
 
 // Depth and normals of the plane z = plane_z (world) seen from T; color a
 // checker so that the photometric term has something to say.
-KeyframeImages planeView(uint32_t id, const Eigen::Isometry3f& T, float plane_z) {
+KeyframeImages planeView(uint32_t id, const Eigen::Isometry3f& T_world_cam, float plane_z) {
   KeyframeImages k;
   k.id = id;
   k.camera = kCam;
-  k.T_world_cam = T;
+  k.T_world_cam = T_world_cam;
   k.depth = cv::Mat(kCam.height, kCam.width, CV_32F, cv::Scalar(0.0f));
   k.rgb = cv::Mat(kCam.height, kCam.width, CV_8UC3, cv::Scalar(0, 0, 0));
   k.normal = cv::Mat(kCam.height, kCam.width, CV_32FC3, cv::Scalar(0, 0, 0));
-  const Eigen::Matrix3f R_cw = T.linear().transpose();
+  const Eigen::Matrix3f R_cw = T_world_cam.linear().transpose();
   const Eigen::Vector3f n_cam =
       R_cw * Eigen::Vector3f(0, 0, -1);  // the plane faces the cameras (they sit at z < plane)
   for (int v = 0; v < kCam.height; ++v) {
     for (int u = 0; u < kCam.width; ++u) {
       const Eigen::Vector3f ray_c = kCam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-      const Eigen::Vector3f ray_w = T.linear() * ray_c;
+      const Eigen::Vector3f ray_w = T_world_cam.linear() * ray_c;
       if (ray_w.z() <= 1e-3f) continue;
-      const float s = (plane_z - T.translation().z()) / ray_w.z();  // z_cam = s
-      const Eigen::Vector3f p = T.translation() + s * ray_w;
+      const float s = (plane_z - T_world_cam.translation().z()) / ray_w.z();  // z_cam = s
+      const Eigen::Vector3f p = T_world_cam.translation() + s * ray_w;
       k.depth.at<float>(v, u) = s;
       const bool dark = (static_cast<int>(std::floor(p.x() / 0.05f)) + static_cast<int>(std::floor(p.y() / 0.05f))) & 1;
       k.rgb.at<cv::Vec3b>(v, u) = dark ? cv::Vec3b(40, 60, 80) : cv::Vec3b(200, 180, 160);

@@ -15,10 +15,10 @@ std::vector<Eigen::Isometry3d> circle(int n) {
   std::vector<Eigen::Isometry3d> poses;
   for (int i = 0; i < n; ++i) {
     const double a = 2.0 * M_PI * i / n;
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    T.translation() = Eigen::Vector3d(2.0 * std::cos(a), 2.0 * std::sin(a), 0.1 * std::sin(3 * a));
-    poses.push_back(T);
+    Eigen::Isometry3d T_world_kf = Eigen::Isometry3d::Identity();
+    T_world_kf.linear() = Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T_world_kf.translation() = Eigen::Vector3d(2.0 * std::cos(a), 2.0 * std::sin(a), 0.1 * std::sin(3 * a));
+    poses.push_back(T_world_kf);
   }
   return poses;
 }
@@ -35,15 +35,15 @@ Loop drifted(int n, uint32_t seed) {
   l.truth = circle(n);
   std::mt19937 rng(seed);
   std::normal_distribution<double> rot(0.0, 0.5 * M_PI / 180.0), trans(0.0, 0.008);
-  Eigen::Isometry3d T = l.truth[0];
-  l.graph.setNode(0, T);
+  Eigen::Isometry3d T_world_kf = l.truth[0];
+  l.graph.setNode(0, T_world_kf);
   const Matrix6d info = isotropicInformation(0.5 * M_PI / 180.0, 0.008);
   for (int i = 1; i < n; ++i) {
     Vector6d xi;
     xi << rot(rng), rot(rng), rot(rng), trans(rng), trans(rng), trans(rng);
     const Eigen::Isometry3d meas = l.truth[i - 1].inverse() * l.truth[i] * expSE3(xi);
-    T = T * meas;
-    l.graph.setNode(static_cast<uint32_t>(i), T);
+    T_world_kf = T_world_kf * meas;
+    l.graph.setNode(static_cast<uint32_t>(i), T_world_kf);
     EXPECT_TRUE(l.graph.addFactor({static_cast<uint32_t>(i - 1), static_cast<uint32_t>(i), meas, info, false}));
   }
   return l;

@@ -416,9 +416,9 @@ TEST(Quality, BlocksAndRoisKeepKeyframesSpreadInDirection) {
     const FrameLevel f = frameLevel(wall);
     const ModelView m = modelView(wall);
     for (uint32_t id = 0; id < 8; ++id) {
-      Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
-      T.translation().x() = xs[id];
-      quality.update(map, {id, T, &f, &m});
+      Eigen::Isometry3f T_world_cam = Eigen::Isometry3f::Identity();
+      T_world_cam.translation().x() = xs[id];
+      quality.update(map, {id, T_world_cam, &f, &m});
     }
     const BlockKey center(0, 0, 12);
     const BlockQuality* q = quality.find(center);

@@ -85,14 +85,15 @@ TEST_F(Relocalization, TheDatabaseIsBoundedAndKeepsSpreadViews) {
   f.descriptors = cv::Mat(1, 32, CV_8U, cv::Scalar(7));
   f.pixels = {{1, 1}};
   f.points_cam = {Eigen::Vector3f(0, 0, 1)};
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
   for (uint32_t id = 0; id < 4; ++id) {
-    T.translation().x() = id == 1 ? 0.01 : static_cast<double>(id);  // keyframe 1 sits next to keyframe 0
-    db.add(id, f, T);
+    T_world_cam.translation().x() = id == 1 ? 0.01 : static_cast<double>(id);  // keyframe 1 sits next to keyframe 0
+    db.add(id, f, T_world_cam);
   }
   EXPECT_EQ(db.size(), 3u);
-  EXPECT_FALSE(db.updatePose(0, T) && db.updatePose(1, T)) << "one of the two near-duplicates must have gone";
-  EXPECT_TRUE(db.updatePose(3, T)) << "the newest stays";
+  EXPECT_FALSE(db.updatePose(0, T_world_cam) && db.updatePose(1, T_world_cam))
+      << "one of the two near-duplicates must have gone";
+  EXPECT_TRUE(db.updatePose(3, T_world_cam)) << "the newest stays";
 }
 
 }  // namespace

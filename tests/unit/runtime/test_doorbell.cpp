@@ -6,7 +6,7 @@
 #include <future>
 #include <thread>
 
-#include "hxmap/runtime/doorbell.hpp"
+#include "hxmap/ring/doorbell.hpp"
 
 namespace hxmap::rt {
 namespace {

@@ -4,9 +4,9 @@
 #include <string>
 #include <vector>
 
-#include "hxmap/runtime/replay.hpp"
-#include "hxmap/runtime/scheduler.hpp"
-#include "hxmap/runtime/trace.hpp"
+#include "hxmap/scheduler/replay.hpp"
+#include "hxmap/scheduler/scheduler.hpp"
+#include "hxmap/scheduler/trace.hpp"
 
 namespace hxmap::rt {
 namespace {

@@ -7,8 +7,8 @@
 #include <thread>
 #include <vector>
 
-#include "hxmap/runtime/latest_slot.hpp"
-#include "hxmap/runtime/spsc_ring.hpp"
+#include "hxmap/ring/latest_slot.hpp"
+#include "hxmap/ring/spsc_ring.hpp"
 
 namespace hxmap::rt {
 namespace {

@@ -34,8 +34,8 @@ class IcpTest : public ::testing::Test {
     return map;
   }
 
-  std::vector<ModelView> modelAt(const TsdfMap& map, const Eigen::Isometry3d& T) {
-    std::vector<ModelView> model{raycast(map, cam_, T.cast<float>(), RaycastParams{})};
+  std::vector<ModelView> modelAt(const TsdfMap& map, const Eigen::Isometry3d& T_world_cam) {
+    std::vector<ModelView> model{raycast(map, cam_, T_world_cam.cast<float>(), RaycastParams{})};
     for (int l = 1; l < 3; ++l) model.push_back(subsampleView(model.back()));
     return model;
   }
@@ -117,17 +117,18 @@ TEST_F(IcpTest, FrameToFrameFallbackAloneFollowsANoisySequence) {
   // the photometric term, never against a map: 40 noisy frames of the orbit
   // (1.3 s, 0.5 m) drift less than 1 cm and 0.5 deg.
   TrackingParams tp;
-  Eigen::Isometry3d T = traj_[0].T_world_cam;
-  PreprocessedFrame previous = preprocessFrame(test::syntheticFrame(scene_, cam_, T, true, 0), cam_, pp_);
+  Eigen::Isometry3d T_world_cam = traj_[0].T_world_cam;
+  PreprocessedFrame previous = preprocessFrame(test::syntheticFrame(scene_, cam_, T_world_cam, true, 0), cam_, pp_);
   for (int i = 1; i < 40; ++i) {
     const PreprocessedFrame pre =
         preprocessFrame(test::syntheticFrame(scene_, cam_, traj_[i].T_world_cam, true, i), cam_, pp_);
-    const IcpResult r = trackPointToPlane(pre, frameAsModel(previous, T), T, tp, {&previous, T});
+    const IcpResult r =
+        trackPointToPlane(pre, frameAsModel(previous, T_world_cam), T_world_cam, tp, {&previous, T_world_cam});
     ASSERT_TRUE(r.ok) << "frame " << i << ": " << r.failure;
-    T = r.T_world_cam;
+    T_world_cam = r.T_world_cam;
     previous = pre;
   }
-  const Eigen::Isometry3d E = traj_[39].T_world_cam.inverse() * T;
+  const Eigen::Isometry3d E = traj_[39].T_world_cam.inverse() * T_world_cam;
   std::printf("frame to frame over 39 frames: %.2f mm, %.3f deg\n", 1000 * translationNorm(E),
               rotationAngle(E) * 180.0 / M_PI);
   EXPECT_LT(translationNorm(E), 0.01) << "m after 39 frames";

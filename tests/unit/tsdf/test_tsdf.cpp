@@ -22,12 +22,13 @@ TsdfParams params(double voxel) {
   return p;
 }
 
-DepthObservation observation(const drv::SyntheticScene& scene, const Eigen::Isometry3d& T, bool noise, int index) {
+DepthObservation observation(const drv::SyntheticScene& scene, const Eigen::Isometry3d& T_world_cam, bool noise,
+                             int index) {
   drv::SyntheticParams sp;
   sp.noise = noise;
-  const auto f = drv::renderFrame(scene, kCam, T, sp, index);
+  const auto f = drv::renderFrame(scene, kCam, T_world_cam, sp, index);
   const auto pre = preprocessFrame({0, 0, f.rgb, f.depth}, kCam, PreprocessParams{});
-  return {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, kCam, T.cast<float>()};
+  return {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, kCam, T_world_cam.cast<float>()};
 }
 
 TEST(TsdfIntegration, OptimizedKernelAgreesWithReference) {
@@ -74,12 +75,12 @@ TsdfMap mapOf(const drv::Primitive& prim, double voxel, const Eigen::Vector3d& c
     const Eigen::Vector3d eye = center + distance * Eigen::Vector3d(std::cos(a), std::sin(a), 0.6).normalized();
     const Eigen::Vector3d f = (center - eye).normalized();
     const Eigen::Vector3d r = f.cross(Eigen::Vector3d::UnitZ()).normalized();
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear().col(0) = r;
-    T.linear().col(1) = f.cross(r);
-    T.linear().col(2) = f;
-    T.translation() = eye;
-    integrate(map, observation(scene, T, false, k));
+    Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+    T_world_cam.linear().col(0) = r;
+    T_world_cam.linear().col(1) = f.cross(r);
+    T_world_cam.linear().col(2) = f;
+    T_world_cam.translation() = eye;
+    integrate(map, observation(scene, T_world_cam, false, k));
   }
   return map;
 }
@@ -208,10 +209,10 @@ TEST(TsdfIntegration, PlaneRecoveredWithinHalfAVoxelByRaycast) {
   floor.b = Eigen::Vector3f(3, 3, 0.5f);
   const double voxel = 0.02;
   const TsdfMap map = mapOf(floor, voxel, {0, 0, 0.013}, 1.5);
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // looking down
-  T.translation() = Eigen::Vector3d(0, 0, 1.2);
-  const ModelView view = raycast(map, kCam, T.cast<float>(), RaycastParams{});
+  Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  T_world_cam.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();  // looking down
+  T_world_cam.translation() = Eigen::Vector3d(0, 0, 1.2);
+  const ModelView view = raycast(map, kCam, T_world_cam.cast<float>(), RaycastParams{});
   ASSERT_GT(view.valid_pixels, kCam.width * kCam.height / 2);
   double worst = 0;
   size_t normals = 0, tilted = 0;  // tilted: more than 8.1 degrees off

@@ -137,12 +137,12 @@ class PoseWindow {
     double depth_cost = 0, photo_cost = 0;  ///< the cost's depth and photometric shares
     ChannelStats counts;
   };
-  Linearization linearize(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+  Linearization linearize(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps,
                           const std::vector<Eigen::Vector2i>& pixels, std::vector<PixelResult>* out = nullptr) const;
   /// The same factor at pose T from rays cast at T_cast: on the tangent
   /// planes of those hits, as the solve's steps between casts see it.
   /// (`repeat` > 1 evaluates the planes that many times: for benchmarks.)
-  Linearization linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast, const Eigen::Isometry3d& T,
+  Linearization linearizeOnPlanes(size_t j, const Eigen::Isometry3d& T_cast, const Eigen::Isometry3d& T_world_kf,
                                   const FeedbackMaps& maps, const std::vector<Eigen::Vector2i>& pixels,
                                   int repeat = 1) const;
 
@@ -166,13 +166,13 @@ class PoseWindow {
     double intensity = 0;
   };
   /// Casts the rays (TSDF, and the fields where they exist); `hits` (optional) receives what was hit.
-  Linearization linearizeSamples(size_t j, const Eigen::Isometry3d& T, const FeedbackMaps& maps,
+  Linearization linearizeSamples(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps,
                                  const std::vector<PixelSample>& samples, std::vector<PixelResult>* out,
                                  std::vector<CachedHit>* hits = nullptr) const;
   /// The same factor at pose T from hits cast at a nearby pose: depth to
   /// their tangent planes, photometric at the hit points' projections
   /// (the model the Jacobians describe). No map access.
-  Linearization linearizeCached(size_t j, const Eigen::Isometry3d& T, const std::vector<PixelSample>& samples,
+  Linearization linearizeCached(size_t j, const Eigen::Isometry3d& T_world_kf, const std::vector<PixelSample>& samples,
                                 const std::vector<CachedHit>& hits, std::vector<PixelResult>* out) const;
   struct Slot {
     std::vector<Eigen::Vector2i> base;   ///< uniform over pixels with depth
@@ -195,7 +195,7 @@ class PoseWindow {
   /// and its 12x12 H and b over (xi_a, xi_b).
   double relativeFactor(size_t a, const Eigen::Isometry3d& Ta, const Eigen::Isometry3d& Tb,
                         Eigen::Matrix<double, 12, 12>* H, Eigen::Matrix<double, 12, 1>* b) const;
-  double priorCost(const Eigen::Isometry3d& T, Matrix6d* H, Vector6d* b) const;
+  double priorCost(const Eigen::Isometry3d& T_world_kf, Matrix6d* H, Vector6d* b) const;
 
   FeedbackParams params_;
   std::vector<WindowKeyframe> keyframes_;

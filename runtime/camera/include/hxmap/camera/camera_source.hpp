@@ -27,7 +27,7 @@
 #include <string>
 
 #include "hxmap/core/expected.hpp"
-#include "hxmap/runtime/realtime.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "hxmap/sync/sync.hpp"
 
 #ifdef HXMAP_HAVE_V4L2

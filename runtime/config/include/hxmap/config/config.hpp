@@ -7,11 +7,12 @@
 #include <string>
 
 #include "hxmap/core/expected.hpp"
-#include "hxmap/preprocess/params.hpp"
-#include "hxmap/implicit/params.hpp"
 #include "hxmap/feedback/params.hpp"
-#include "hxmap/quality/params.hpp"
+#include "hxmap/implicit/params.hpp"
 #include "hxmap/posegraph/params.hpp"
+#include "hxmap/preprocess/params.hpp"
+#include "hxmap/quality/params.hpp"
+#include "hxmap/refine/params.hpp"
 #include "hxmap/relocalization/params.hpp"
 #include "hxmap/tracking/params.hpp"
 #include "hxmap/tsdf/params.hpp"
@@ -87,18 +88,6 @@ struct RuntimeConfig {
   double max_lost_share = 1.0;
 };
 
-/// ROI refinement (paper 3.3): which jobs the frontend makes, and the
-/// neural field each job trains.
-struct RefineConfig {
-  bool enabled = true;
-  int max_jobs_per_keyframe = 2;
-  int min_job_keyframes = 2;
-  int cooldown_keyframes = 10;
-  int keyframe_images = 24;
-  int max_pending_jobs = 8;
-  alg::ImplicitParams implicit;
-};
-
 /// A live color + depth camera pair (drivers/sync): intrinsics and
 /// distortion of each camera, the depth camera's pose in the color camera's
 /// frame, the depth unit, and how far apart in time a color and a depth
@@ -153,7 +142,7 @@ struct HxmapConfig {
   alg::LoopClosureParams loop_closure;
   bool quality_enabled = true;
   alg::QualityParams quality;
-  RefineConfig refine;
+  RefineParams refine;
   alg::FeedbackParams feedback;
   SyntheticConfig synthetic;
   EvalConfig eval;

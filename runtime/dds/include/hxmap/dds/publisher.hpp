@@ -29,7 +29,7 @@
 #include "hxmap/core/frame.hpp"
 #include "hxmap/dds/messages.hpp"
 #include "hxmap/frontend/results.hpp"
-#include "hxmap/runtime/spsc_ring.hpp"
+#include "hxmap/ring/spsc_ring.hpp"
 #include "hxmap/tsdf/map_regions.hpp"
 #include "hxmap/tsdf/params.hpp"
 

@@ -18,15 +18,15 @@
 #include "hxmap/feedback/field_surface.hpp"
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
-#include "hxmap/frontend/feedback_solver.hpp"
 #include "hxmap/frontend/loop_closer.hpp"
-#include "hxmap/frontend/refine_job.hpp"
 #include "hxmap/frontend/results.hpp"
 #include "hxmap/implicit/refine.hpp"
+#include "hxmap/pose_feedback/feedback_solver.hpp"
 #include "hxmap/posegraph/params.hpp"
 #include "hxmap/posegraph/pose_graph.hpp"
 #include "hxmap/preprocess/preprocess.hpp"
 #include "hxmap/quality/quality.hpp"
+#include "hxmap/refine/refine_job.hpp"
 #include "hxmap/relocalization/keyframe_database.hpp"
 #include "hxmap/tracking/icp.hpp"
 #include "hxmap/tracking/state.hpp"
@@ -47,22 +47,10 @@ struct FrontendParams {
   alg::RelocalizationParams relocalization;
   alg::QualityParams quality;
   bool quality_enabled = true;  ///< score map regions on keyframes (paper 3.2)
-  alg::ImplicitParams implicit;
-  /// Make ROI refinement jobs (paper 3.3) from each keyframe's ROIs; the
-  /// caller runs them (takeRefineJobs) and hands the results back
-  /// (applyRefinement). Needs quality_enabled.
-  bool refine_enabled = true;
-  int max_jobs_per_keyframe = 2;
-  /// An ROI seen by fewer kept keyframes is not refined (one view gives no
-  /// multi-view evidence: the field would only copy that view).
-  int min_job_keyframes = 2;
-  /// A block refined (or submitted) is not submitted again for this many
-  /// keyframes; an ROI goes only when most of its blocks are free.
-  int refine_cooldown_keyframes = 10;
-  /// Keyframe images kept for jobs (half resolution: about 1.1 MB each).
-  int keyframe_images = 24;
-  /// Jobs not taken by then are dropped, oldest first, and counted.
-  int max_pending_jobs = 8;
+  /// ROI refinement jobs (paper 3.3) from each keyframe's ROIs: the caller
+  /// runs them (takeRefineJobs) and hands the outcomes back
+  /// (applyRefinement). refine.enabled needs quality_enabled.
+  RefineParams refine;
   /// Pose feedback (paper 3.4): each keyframe goes to the window
   /// (takeFeedbackKeyframes) and its corrected poses come back
   /// (applyKeyframeCorrection). feedback.enabled = false: neither.
@@ -222,7 +210,7 @@ class Frontend {
   void fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found);
   /// A frame got pose T (fused or only followed): the next frame is
   /// tracked from it.
-  void followPose(const Eigen::Isometry3d& T, const alg::PreprocessedFrame& pre);
+  void followPose(const Eigen::Isometry3d& T_world_cam, const alg::PreprocessedFrame& pre);
   /// The frame's color camera relative to its depth camera: the motion
   /// over the time between the two images at the last velocity.
   Eigen::Isometry3d colorOffset(const alg::PreprocessedFrame& frame) const;
@@ -261,7 +249,7 @@ class Frontend {
   void makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& T_world_kf, FrameResult& r);
   /// Within locate(): the decision, the result that gave the pose (or the
   /// model's failed one) and the pose.
-  alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T);
+  alg::TrackingDecision track(const alg::PreprocessedFrame& pre, alg::IcpResult& icp, Eigen::Isometry3d& T_world_cam);
   void scoreKeyframe(FrameResult& r);
   void keepKeyframeImages(uint32_t id);
   void makeRefineJobs(uint32_t keyframe_id);

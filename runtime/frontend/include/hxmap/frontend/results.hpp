@@ -46,18 +46,6 @@ struct RunCounters {
   double latency_ms = 0;  ///< this frame: arrival to pose
 };
 
-/// What applying corrections did, summed over a run.
-struct FeedbackCounters {
-  uint64_t corrections = 0;       ///< keyframe corrections applied
-  uint64_t corrections_late = 0;  ///< for keyframes no longer kept (ignored)
-  uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
-  uint64_t reintegrations_pending = 0;
-  double reintegrate_ms = 0;  ///< total
-  uint64_t snapshots = 0;     ///< map copies for a feedback thread (feedbackSnapshot)
-  uint64_t snapshot_blocks = 0;
-  double snapshot_ms = 0;  ///< total
-};
-
 /// How tracking found its poses, summed over a run.
 struct TrackingCounters {
   uint64_t velocity_retries = 0;         ///< frames tracked a second time from the constant-velocity guess

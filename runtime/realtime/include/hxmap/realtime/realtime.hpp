@@ -49,8 +49,8 @@
 #include "hxmap/core/expected.hpp"
 #include "hxmap/core/frame.hpp"
 #include "hxmap/frontend/frontend.hpp"
-#include "hxmap/runtime/scheduler.hpp"
-#include "hxmap/runtime/trace.hpp"
+#include "hxmap/scheduler/scheduler.hpp"
+#include "hxmap/scheduler/trace.hpp"
 
 namespace hxmap::rt {
 
@@ -113,8 +113,8 @@ class FrameLimit : public FrameSource {
 };
 
 struct RealtimeOptions {
-  double fps = 0;                  ///< playback rate of a frame vector; 0 = the recorded stamps
-  SchedulerParams scheduler;       ///< target_fps is set from the source's rate
+  double fps = 0;             ///< playback rate of a frame vector; 0 = the recorded stamps
+  SchedulerParams scheduler;  ///< target_fps is set from the source's rate
   int refine_workers = 1;
   /// Nice value the refinement workers and the pose-feedback thread take
   /// (Linux: per thread; 0 = unchanged). DESIGN: the scheduler admits
@@ -146,8 +146,8 @@ struct RealtimeOptions {
 struct RealtimeStats {
   SchedulerCounters counters;
   double wall_s = 0;
-  double fps = 0;                  ///< frames processed per second of playback
-  double latency_p50_ms = 0, latency_p99_ms = 0;    ///< arrival to pose
+  double fps = 0;                                 ///< frames processed per second of playback
+  double latency_p50_ms = 0, latency_p99_ms = 0;  ///< arrival to pose
   double frontend_p50_ms = 0, frontend_p99_ms = 0;
   uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
   uint64_t patches_applied = 0, corrections_applied = 0;  ///< results applied between frames
@@ -160,8 +160,8 @@ struct RealtimeStats {
   uint64_t refine_jobs_submitted = 0, refine_jobs_rejected = 0, refine_jobs_completed = 0, refine_jobs_shed = 0;
   uint64_t refine_outcomes_dropped = 0, refine_slices = 0, refine_voxels_written = 0;
   bool stopped_early = false;
-  std::string source_error;        ///< why the source ended early (empty: it ran out or was stopped)
-  std::string report;              ///< the final table
+  std::string source_error;  ///< why the source ended early (empty: it ran out or was stopped)
+  std::string report;        ///< the final table
   std::vector<FrameResult> results;
 };
 

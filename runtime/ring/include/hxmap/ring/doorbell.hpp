@@ -10,7 +10,7 @@
 #include <cstdint>
 #include <utility>
 
-#include "hxmap/runtime/latest_slot.hpp"
+#include "hxmap/ring/latest_slot.hpp"
 
 namespace hxmap::rt {
 

@@ -44,13 +44,13 @@
 namespace hxmap::rt {
 
 struct SchedulerParams {
-  double target_fps = 25.0;       ///< frame deadline = 1 / target_fps after arrival
-  double margin_ms = 1.0;         ///< kept free before the next frame is due
-  double ewma_alpha = 0.2;        ///< weight of the newest cost sample
-  int recent_frames = 32;         ///< window of the recent maximum and percentiles (frames)
-  int shed_after_periods = 8;     ///< a job without slack for this many periods is shed (started: + recent_frames)
-  int max_feedback_effort = 3;    ///< pose feedback effort levels above 0 (off)
-  int warmup_frames = 3;          ///< no background slice before this many frames have a measured cost
+  double target_fps = 25.0;     ///< frame deadline = 1 / target_fps after arrival
+  double margin_ms = 1.0;       ///< kept free before the next frame is due
+  double ewma_alpha = 0.2;      ///< weight of the newest cost sample
+  int recent_frames = 32;       ///< window of the recent maximum and percentiles (frames)
+  int shed_after_periods = 8;   ///< a job without slack for this many periods is shed (started: + recent_frames)
+  int max_feedback_effort = 3;  ///< pose feedback effort levels above 0 (off)
+  int warmup_frames = 3;        ///< no background slice before this many frames have a measured cost
 };
 
 /// Cost of one stage or job kind: EWMA, recent maximum, percentiles.
@@ -83,8 +83,8 @@ const char* frontendStageName(FrontendStage s);
 /// One background job as the scheduler sees it; owned by the thread that
 /// runs it.
 struct JobTicket {
-  std::string kind;               ///< e.g. "refine", "feedback": costs are learned per kind
-  double slice_estimate_ms = 5;   ///< the job's own estimate until a slice has been measured
+  std::string kind;              ///< e.g. "refine", "feedback": costs are learned per kind
+  double slice_estimate_ms = 5;  ///< the job's own estimate until a slice has been measured
   int64_t submitted_ns = 0;
   int64_t last_admitted_ns = -1;  ///< -1: never started
   bool started() const { return last_admitted_ns >= 0; }
@@ -98,8 +98,8 @@ enum class Verdict {
 
 struct SchedulerCounters {
   uint64_t frames_in = 0, frames_processed = 0, frames_dropped = 0, deadline_misses = 0;
-  uint64_t jobs_submitted = 0, slices_admitted = 0, jobs_completed = 0, jobs_shed_unstarted = 0,
-           jobs_cancelled = 0, slices_paused = 0;
+  uint64_t jobs_submitted = 0, slices_admitted = 0, jobs_completed = 0, jobs_shed_unstarted = 0, jobs_cancelled = 0,
+           slices_paused = 0;
 };
 
 class Scheduler {
@@ -175,16 +175,16 @@ class Scheduler {
   std::array<CostModel, static_cast<size_t>(FrontendStage::kCount)> stages_;
   int64_t current_arrival_ns_ = 0;
   // Shared with background threads.
-  std::atomic<int64_t> next_due_ns_{0};        ///< when the next frame is due
-  std::atomic<int64_t> frame_end_pred_ns_{0};  ///< predicted end of the frame in progress
-  std::atomic<int64_t> last_arrival_ns_{-1};   ///< newest frame arrival
+  std::atomic<int64_t> next_due_ns_{0};          ///< when the next frame is due
+  std::atomic<int64_t> frame_end_pred_ns_{0};    ///< predicted end of the frame in progress
+  std::atomic<int64_t> last_arrival_ns_{-1};     ///< newest frame arrival
   std::atomic<int64_t> started_arrival_ns_{-1};  ///< arrival of the newest frame started
-  std::atomic<int64_t> frontend_pred_ns_{0};   ///< predicted frontend cost per frame
+  std::atomic<int64_t> frontend_pred_ns_{0};     ///< predicted frontend cost per frame
   std::atomic<int> feedback_effort_;
   std::atomic<uint64_t> epoch_{0};  ///< bumped when a frame ends and by wakeAll
   std::atomic<uint64_t> frames_in_{0}, frames_processed_{0}, frames_dropped_{0}, misses_{0};
-  std::atomic<uint64_t> jobs_submitted_{0}, slices_admitted_{0}, jobs_completed_{0}, shed_unstarted_{0},
-      cancelled_{0}, paused_{0};
+  std::atomic<uint64_t> jobs_submitted_{0}, slices_admitted_{0}, jobs_completed_{0}, shed_unstarted_{0}, cancelled_{0},
+      paused_{0};
   // Background side: job costs by kind, under a mutex (touched once per
   // slice by background threads, never by the frontend's per-frame path).
   mutable std::mutex job_mutex_;

@@ -14,10 +14,21 @@
 
 #include "hxmap/feedback/params.hpp"
 #include "hxmap/feedback/window.hpp"
-#include "hxmap/frontend/results.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
 
 namespace hxmap::rt {
+
+/// What applying corrections did, summed over a run.
+struct FeedbackCounters {
+  uint64_t corrections = 0;       ///< keyframe corrections applied
+  uint64_t corrections_late = 0;  ///< for keyframes no longer kept (ignored)
+  uint64_t reintegrations = 0;    ///< keyframes de-integrated and integrated at the new pose
+  uint64_t reintegrations_pending = 0;
+  double reintegrate_ms = 0;  ///< total
+  uint64_t snapshots = 0;     ///< map copies for a feedback thread (feedbackSnapshot)
+  uint64_t snapshot_blocks = 0;
+  double snapshot_ms = 0;  ///< total
+};
 
 /// A keyframe for a pose-feedback solver on another thread, with the map
 /// copy to solve on (Frontend::feedbackSnapshot; shared by the keyframes

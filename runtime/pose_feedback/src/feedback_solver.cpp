@@ -1,4 +1,4 @@
-#include "hxmap/frontend/feedback_solver.hpp"
+#include "hxmap/pose_feedback/feedback_solver.hpp"
 
 #include <algorithm>
 #include <chrono>

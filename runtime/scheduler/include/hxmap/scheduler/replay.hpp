@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "hxmap/runtime/scheduler.hpp"
+#include "hxmap/scheduler/scheduler.hpp"
 
 namespace hxmap::rt {
 
@@ -24,18 +24,18 @@ struct ReplayFrame {
 struct ReplayJob {
   std::string kind = "refine";
   int64_t submit_ns = 0;
-  double slice_ms = 5;        ///< what a slice really costs
-  double estimate_ms = 5;     ///< what the job declares before it has run
+  double slice_ms = 5;     ///< what a slice really costs
+  double estimate_ms = 5;  ///< what the job declares before it has run
   int slices = 1;
-  int slow_slice = -1;        ///< this slice (index) really costs slow_slice_ms (preempted, say)
+  int slow_slice = -1;  ///< this slice (index) really costs slow_slice_ms (preempted, say)
   double slow_slice_ms = 0;
 };
 
 struct ReplayResult {
   SchedulerCounters counters;
-  std::vector<size_t> processed;         ///< frame indices in processing order
-  std::vector<size_t> newest_at_start;   ///< newest arrived frame when each started
-  double worst_lateness_ms = 0;          ///< max(finish - deadline), <= 0 when all met
+  std::vector<size_t> processed;        ///< frame indices in processing order
+  std::vector<size_t> newest_at_start;  ///< newest arrived frame when each started
+  double worst_lateness_ms = 0;         ///< max(finish - deadline), <= 0 when all met
   int64_t end_ns = 0;
   std::string report;
 };

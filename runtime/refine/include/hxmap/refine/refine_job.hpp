@@ -11,6 +11,7 @@
 #include "hxmap/implicit/params.hpp"
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/quality/quality.hpp"
+#include "hxmap/refine/params.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
 
 namespace hxmap::rt {

@@ -12,14 +12,14 @@
 #include <vector>
 
 #include "hxmap/core/expected.hpp"
-#include "hxmap/runtime/replay.hpp"
+#include "hxmap/scheduler/replay.hpp"
 
 namespace hxmap::rt {
 
 struct TraceEvent {
-  std::string name;       ///< stage: preprocess, track, integrate, raycast, frame, refine, ...
-  std::string category;   ///< frontend, background, sensor
-  int64_t start_ns = 0;   ///< steady clock, relative to the recorder's origin
+  std::string name;      ///< stage: preprocess, track, integrate, raycast, frame, refine, ...
+  std::string category;  ///< frontend, background, sensor
+  int64_t start_ns = 0;  ///< steady clock, relative to the recorder's origin
   int64_t duration_ns = 0;
   int thread = 0;         ///< small id; names via TraceRecorder::nameThread
   int64_t frame = -1;     ///< frame sequence number, -1 if none

@@ -1,4 +1,4 @@
-#include "hxmap/frontend/refine_job.hpp"
+#include "hxmap/refine/refine_job.hpp"
 
 #include <algorithm>
 #include <chrono>

@@ -128,7 +128,7 @@ class SpscRing {
     while (front() != nullptr) pop();
   }
 
-  const size_t slots_;        // read-only after construction: shared freely
+  const size_t slots_;  // read-only after construction: shared freely
   Slot* storage_ = nullptr;
   Side write_;  ///< producer's line
   Side read_;   ///< consumer's line (alignment pads it to a full line)
