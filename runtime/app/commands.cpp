@@ -30,6 +30,7 @@
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "parallel.hpp"
 #include "progress.hpp"
+#include "run_folder.hpp"
 #include "sd_notify.hpp"
 #include "stop_signals.hpp"
 #ifdef HXMAP_HAVE_DDS
@@ -250,6 +251,8 @@ struct RunPipeline {
   std::unique_ptr<dds::Publisher> publisher;
 #endif
   bool realtime = false;
+  RunFolder folder;  ///< where the outputs go (committed to --out at the end)
+  std::unique_ptr<LiveTrajectoryFile> live_file;
 };
 
 // What the run did, for the outputs and the summary.
@@ -282,6 +285,7 @@ struct RunRecord {
   Trajectory live;  ///< each frame's pose as it was when the frame was processed (published live)
   std::array<std::vector<double>, kStageCount> stage_ms;
   std::vector<double> total_ms;
+  std::vector<double> checkpoint_ms;  ///< offline checkpoints of the mesh and trajectory
   size_t bad_frames = 0, frames_without_truth = 0;
   std::string first_error, realtime_report, feedback_text;
   RefineTally refine;
@@ -294,7 +298,7 @@ struct RunRecord {
 Status checkRunOptions(const RunOptions& o) {
   if (!o.camera.empty() && !o.dataset.empty()) return fail("run: give --dataset or --camera, not both");
   if (o.camera.empty() && o.dataset.empty()) return fail("run: give --dataset FOLDER or --camera SPEC");
-  if (!o.trace.empty()) {
+  if (!o.trace.empty() && !isUnder(o.trace, o.out_dir)) {
     // Checked now, not after the run it would describe.
     const fs::path dir = fs::path(o.trace).parent_path().empty() ? fs::path(".") : fs::path(o.trace).parent_path();
     std::error_code ec;
@@ -381,9 +385,13 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
     return fail(fmt::format("--fuse-ground-truth: needs an offline run of a dataset with ground truth{}",
                             p.realtime ? " (not --realtime or a camera)" : fmt::format(" ({} has none)", o.dataset)));
   }
-  std::error_code ec;
-  fs::create_directories(o.out_dir, ec);
-  if (ec) return fail(fmt::format("{}: cannot create the output folder: {}", o.out_dir, ec.message()));
+  auto folder = RunFolder::open(o.out_dir, o.overwrite);
+  if (!folder) return folder.error();
+  p.folder = std::move(*folder);
+  if (!p.folder.notice().empty()) spdlog::warn("{}", p.folder.notice());
+  auto live_file = LiveTrajectoryFile::open(p.folder.path("trajectory_live.txt"));
+  if (!live_file) return live_file.error();
+  p.live_file = std::make_unique<LiveTrajectoryFile>(std::move(*live_file));
   p.parallel = makeParallelFor(c.runtime.threads);
   p.params = frontendParams(c);
   p.frontend = std::make_unique<Frontend>(in.cam, p.params, p.parallel);
@@ -456,13 +464,14 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   ro.loop_parallel = makeParallelFor(c.runtime.threads);
   ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
   ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+  // Each pose to disk as it is published (a killed run keeps them all).
+  ro.on_frame = [&p](const FrameResult& r, [[maybe_unused]] const Frontend& f,
+                     [[maybe_unused]] const RunCounters& counters) {
+    p.live_file->append(r.stamp_ns, r.T_world_cam);
 #ifdef HXMAP_HAVE_DDS
-  if (p.publisher) {
-    ro.on_frame = [&](const FrameResult& r, const Frontend& f, const RunCounters& counters) {
-      p.publisher->onFrame(r, f.map(), f.trajectory(), counters);
-    };
-  }
+    if (p.publisher) p.publisher->onFrame(r, f.map(), f.trajectory(), counters);
 #endif
+  };
   // Under systemd (Type=notify): ready once the frames are loaded (the
   // camera streams), then a watchdog heartbeat from the status loop while
   // the run is healthy.
@@ -491,8 +500,19 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
 // the keyframe that made them, and the pose-feedback window is solved on
 // each new keyframe: no wall-clock budget, so the outputs do not depend on
 // the machine or its load (--realtime runs both on background threads).
-void runOffline(const RunOptions& o, RunInput& in, RunPipeline& p, RunRecord& rec) {
+// The mesh and trajectory so far into the run's folder (replaced at the end).
+void checkpoint(const HxmapConfig& c, const RunPipeline& p, RunRecord& rec) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const Frontend& frontend = *p.frontend;
+  Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(frontend.trajectory()));
+  if (s) s = drv::writePly(p.folder.path("mesh.ply"), frontend.mesh(c.mesh));
+  if (!s) spdlog::warn("checkpoint: {}", s.message());
+  rec.checkpoint_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+}
+
+void runOffline(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipeline& p, RunRecord& rec) {
   Frontend& frontend = *p.frontend;
+  auto last_checkpoint = std::chrono::steady_clock::now();
   std::optional<SerialFeedback> feedback;
   if (p.params.feedback.enabled) feedback.emplace(p.params.feedback);
   Progress progress("mapping", in.frames.size());
@@ -544,6 +564,7 @@ void runOffline(const RunOptions& o, RunInput& in, RunPipeline& p, RunRecord& re
     }
     if (feedback) feedback->step(frontend);
     const double sum = rec.add(r);
+    p.live_file->append(r.stamp_ns, r.T_world_cam);
 #ifdef HXMAP_HAVE_DDS
     if (p.publisher) {
       p.publisher->onFrame(
@@ -554,6 +575,12 @@ void runOffline(const RunOptions& o, RunInput& in, RunPipeline& p, RunRecord& re
     }
 #endif
     progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
+    if (c.runtime.checkpoint_s > 0 &&
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint).count() >=
+            c.runtime.checkpoint_s) {
+      checkpoint(c, p, rec);
+      last_checkpoint = std::chrono::steady_clock::now();
+    }
   }
   rec.end_counters = {rec.bad_frames, 0, rec.refine.jobs, 0, 0};
   if (feedback) rec.feedback_text = feedback->tally().text(frontend.feedbackCounters(), p.params.feedback);
@@ -567,25 +594,24 @@ struct RunOutputs {
   bool ok() const { return not_written.empty(); }
 };
 
-RunOutputs writeOutputs(const RunOptions& o, const HxmapConfig& c, const RunPipeline& p, const RunRecord& rec) {
+RunOutputs writeOutputs(const HxmapConfig& c, const RunPipeline& p, const RunRecord& rec) {
   RunOutputs out;
   auto write = [&](const std::string& name, const std::function<Status(const std::string&)>& writer) {
-    const std::string path = (fs::path(o.out_dir) / name).string();
-    if (auto s = writer(path); !s) {
+    const std::string shown = (fs::path(p.folder.out()) / name).string();
+    if (auto s = writer(p.folder.path(name)); !s) {
       spdlog::error("{}", s.message());
-      out.not_written.push_back(path);
+      out.not_written.push_back(shown);
     } else {
-      out.written.push_back(path);
+      out.written.push_back(shown);
     }
   };
   const Frontend& frontend = *p.frontend;
   write("trajectory.txt", [&](const std::string& path) {
     return drv::writeTextFile(path, drv::formatTumTrajectory(frontend.trajectory()));
   });
-  if (p.params.loop_closure.enabled) {
-    write("trajectory_live.txt",
-          [&](const std::string& path) { return drv::writeTextFile(path, drv::formatTumTrajectory(rec.live)); });
-  }
+  p.live_file->close();
+  write("trajectory_live.txt",
+        [&](const std::string& path) { return drv::writeTextFile(path, drv::formatTumTrajectory(rec.live)); });
   out.mesh = frontend.mesh(c.mesh);
   write("mesh.ply", [&](const std::string& path) { return drv::writePly(path, out.mesh); });
   return out;
@@ -678,6 +704,10 @@ std::string summarize(const RunOptions& o, const HxmapConfig& c, const RunInput&
                            static_cast<double>(rec.total_ms.size()) / rec.wall_s, rec.wall_s,
                            c.runtime.threads > 0 ? std::to_string(c.runtime.threads) : "all");
   }
+  if (!rec.checkpoint_ms.empty()) {
+    summary += fmt::format("checkpoints: {} (mesh and trajectory every {:g} s), median {:.0f} ms each\n",
+                           rec.checkpoint_ms.size(), c.runtime.checkpoint_s, percentiles(rec.checkpoint_ms).median);
+  }
   summary += rec.feedback_text;
   if (p.params.loop_closure.enabled) summary += loopClosureSummary(frontend);
   if (!in.groundTruth().empty()) {
@@ -708,7 +738,9 @@ std::string runFailure(const HxmapConfig& c, const Frontend& frontend) {
 
 }  // namespace
 
-int runCommand(const RunOptions& o) {
+int runCommand(const RunOptions& options) {
+  RunOptions o = options;
+  o.out_dir = expandOutPath(options.out_dir, static_cast<int64_t>(std::time(nullptr)));
   auto config = loadAndPrint(o.config);
   if (!config) {
     spdlog::error("{}", config.message());
@@ -732,6 +764,9 @@ int runCommand(const RunOptions& o) {
   RunInput& in = *input;
   RunPipeline& p = *pipeline;
   const Frontend& frontend = *p.frontend;
+  // Quality images and the trace asked for inside --out go with the set.
+  o.save_quality = p.folder.redirect(o.save_quality);
+  o.trace = p.folder.redirect(o.trace);
 
   StopSignals signals;
   RunRecord rec(o);
@@ -741,7 +776,7 @@ int runCommand(const RunOptions& o) {
       return 2;
     }
   } else {
-    runOffline(o, in, p, rec);
+    runOffline(o, c, in, p, rec);
   }
   rec.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - rec.start).count();
 #ifdef HXMAP_HAVE_DDS
@@ -754,7 +789,7 @@ int runCommand(const RunOptions& o) {
   }
 #endif
 
-  const RunOutputs out = writeOutputs(o, c, p, rec);
+  const RunOutputs out = writeOutputs(c, p, rec);
   int exit_code = rec.first_error.empty() && out.ok() ? 0 : 1;
   std::string summary = summarize(o, c, in, p, rec, out);
 #ifdef HXMAP_HAVE_DDS
@@ -766,7 +801,8 @@ int runCommand(const RunOptions& o) {
       spdlog::error("{}", s.message());
       exit_code = 1;
     } else {
-      summary += fmt::format("quality: indicator images per keyframe, rois.ply and blocks.csv in {}\n", o.save_quality);
+      summary +=
+          fmt::format("quality: indicator images per keyframe, rois.ply and blocks.csv in {}\n", options.save_quality);
     }
   }
   summary += fmt::format("outputs: {}\n",
@@ -786,12 +822,23 @@ int runCommand(const RunOptions& o) {
       spdlog::error("{}", s.message());
       exit_code = 1;
     } else {
-      summary += fmt::format("trace: {} ({} events; open in ui.perfetto.dev)\n", o.trace, rec.trace.size());
+      summary += fmt::format("trace: {} ({} events; open in ui.perfetto.dev)\n", options.trace, rec.trace.size());
     }
   }
-  if (auto s = drv::writeTextFile((fs::path(o.out_dir) / "summary.txt").string(), summary); !s) {
-    spdlog::error("{}", s.message());
-    exit_code = 1;
+  // A run that mapped nothing leaves --out as it was (a finished run in it
+  // is not replaced by an empty one); any other run replaces it as a whole.
+  if (frontend.trackingCounts().tracked == 0) {
+    summary += fmt::format("{} left as it was: this run mapped nothing\n", p.folder.out());
+    p.folder.discard();
+  } else {
+    if (auto s = drv::writeTextFile(p.folder.path("summary.txt"), summary); !s) {
+      spdlog::error("{}", s.message());
+      exit_code = 1;
+    }
+    if (auto s = p.folder.commit(); !s) {
+      spdlog::error("{} (this run's outputs are in {})", s.message(), p.folder.staging());
+      exit_code = 1;
+    }
   }
   std::fputs(summary.c_str(), stdout);
   return exit_code;
@@ -896,6 +943,7 @@ int demoCommand(const std::string& out_dir, const std::string& config) {
   ro.dataset = scene;
   ro.config = config;
   ro.out_dir = out_dir;
+  ro.overwrite = true;  // the demo maps its scene afresh
   return runCommand(ro);
 }
 

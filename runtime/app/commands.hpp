@@ -15,7 +15,10 @@ struct RunOptions {
   std::string dataset;
   std::string camera;  ///< live camera spec (runtime/camera); instead of dataset, always real time
   std::string config;  ///< empty = built-in defaults
+  /// Where the outputs go, replaced as a whole when the run ends; `{time}`
+  /// becomes the UTC start time (one folder per run).
   std::string out_dir = "hxmap_out";
+  bool overwrite = false;  ///< replace a finished run in out_dir
   int max_frames = -1;  ///< -1 = from config
   bool skip_bad = false;
   bool no_mesh_eval = false;

@@ -29,7 +29,10 @@ int main(int argc, char** argv) {
       "libcamera[:ID]+v4l2:DEPTH_DEV; calibration from the rig: section");
   dataset_opt->excludes(camera_opt);
   run_cmd->add_option("--config", run.config, "YAML configuration (default: built-in defaults)");
-  run_cmd->add_option("--out", run.out_dir, "output folder (trajectory.txt, mesh.ply, summary.txt)");
+  run_cmd->add_option("--out", run.out_dir,
+                      "output folder (trajectory.txt, mesh.ply, summary.txt), replaced as a whole when the run ends; "
+                      "{time} in it becomes the UTC start time");
+  run_cmd->add_flag("--overwrite", run.overwrite, "replace a finished run in --out (kept otherwise: the run refuses)");
   run_cmd->add_option("--max-frames", run.max_frames, "process at most this many frames")
       ->check(CLI::Range(1, 1000000000));
   run_cmd->add_option("--camera-preset", run.camera_preset,

@@ -1,15 +1,18 @@
 // The frontend end to end on synthetic sequences with exact ground truth,
 // including frames with no depth and corrupt frames.
 #include <algorithm>
-#include <vector>
-#include <thread>
 #include <atomic>
+#include <chrono>
 #include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
+#include <thread>
+#include <vector>
 
+#include <sys/resource.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -329,6 +332,8 @@ TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
   EXPECT_TRUE(std::filesystem::exists(out + "/trajectory.txt")) << "what was mapped is still written";
 
   o.skip_bad = true;
+  EXPECT_EQ(runCommand(o), 2) << "the folder holds a finished run: replaced only with --overwrite";
+  o.overwrite = true;
   EXPECT_EQ(runCommand(o), 0);
   std::ifstream summary(out + "/summary.txt");
   const std::string text((std::istreambuf_iterator<char>(summary)), {});
@@ -360,32 +365,104 @@ TEST(RunCommand, ARunThatMapsNothingExitsWithOneAndSaysWhy) {
   for (const auto& entry : std::filesystem::directory_iterator(data + "/depth")) {
     ASSERT_TRUE(cv::imwrite(entry.path().string(), cv::Mat(kCam.height, kCam.width, CV_16U, cv::Scalar(0))));
   }
+  // A finished run in the folder: the failed run must not replace it.
+  const std::string good = syntheticSequence("seq_good", 3);
   RunOptions o;
-  o.dataset = data;
+  o.dataset = good;
   o.out_dir = out;
   o.no_mesh_eval = true;
+  ASSERT_EQ(runCommand(o), 0);
+  auto read = [](const std::string& path) {
+    std::ifstream in(path);
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  };
+  const std::string finished_summary = read(out + "/summary.txt"), finished_mesh = read(out + "/mesh.ply");
+  ASSERT_NE(finished_summary.find("processed 3"), std::string::npos) << finished_summary;
+
+  o.dataset = data;
+  o.overwrite = true;
+  ::testing::internal::CaptureStdout();
   EXPECT_EQ(runCommand(o), 1);
-  std::ifstream summary(out + "/summary.txt");
-  const std::string text((std::istreambuf_iterator<char>(summary)), {});
+  const std::string text = ::testing::internal::GetCapturedStdout();
   EXPECT_NE(text.find("result: failed, nothing was mapped: none of the 4 frames"), std::string::npos) << text;
+  EXPECT_NE(text.find(out + " left as it was: this run mapped nothing"), std::string::npos) << text;
+  EXPECT_EQ(read(out + "/summary.txt"), finished_summary);
+  EXPECT_EQ(read(out + "/mesh.ply"), finished_mesh);
+  EXPECT_FALSE(std::filesystem::exists(out + ".partial"));
 }
 
 TEST(RunCommand, AnOutputThatCannotBeWrittenLeavesNoTemporaryAndIsNotListed) {
   const std::string data = syntheticSequence("seq_out", 3), out = test::tempDir("out_blocked");
   ASSERT_FALSE(data.empty());
-  // A folder where the mesh should go: the rename onto it fails.
-  std::filesystem::create_directories(out + "/mesh.ply/keep");
+  // Files larger than 16 KiB cannot be written (as on a full disk): the
+  // trajectories and the summary fit, the mesh does not.
+  struct rlimit before {};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &before), 0);
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+  struct rlimit small = before;
+  small.rlim_cur = 16 * 1024;
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small), 0);
   RunOptions o;
   o.dataset = data;
   o.out_dir = out;
   o.no_mesh_eval = true;
-  EXPECT_EQ(runCommand(o), 1);
+  const int rc = runCommand(o);
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &before), 0);
+  std::signal(SIGXFSZ, old_handler);
+  EXPECT_EQ(rc, 1);
   EXPECT_FALSE(std::filesystem::exists(out + "/mesh.ply.tmp"));
+  EXPECT_FALSE(std::filesystem::exists(out + "/mesh.ply"));
   std::ifstream summary(out + "/summary.txt");
   const std::string text((std::istreambuf_iterator<char>(summary)), {});
   EXPECT_NE(text.find("outputs: " + out + "/trajectory.txt, " + out + "/trajectory_live.txt\n"), std::string::npos)
       << text;
   EXPECT_NE(text.find("not written (see the errors): " + out + "/mesh.ply"), std::string::npos) << text;
+}
+
+TEST(RunCommand, AKilledRunKeepsEveryPoseItHadAndTheNextRunSaysSo) {
+  // SIGKILL (the OOM killer, a watchdog) mid-run: the poses reached disk
+  // frame by frame; --out is untouched; the next run keeps them aside.
+  const std::string data = syntheticSequence("seq_kill", 60), out = test::tempDir("killed") + "/out";
+  ASSERT_FALSE(data.empty());
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    if (!std::freopen("/dev/null", "w", stdout) || !std::freopen("/dev/null", "w", stderr)) ::_exit(126);
+    ::execl(HXMAP_BIN, HXMAP_BIN, "run", "--dataset", data.c_str(), "--out", out.c_str(), "--no-mesh-eval",
+            static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  auto poses = [](const std::string& path) {
+    std::ifstream in(path);
+    int n = 0;
+    for (std::string line; std::getline(in, line);) n += !line.empty() && line[0] != '#';
+    return n;
+  };
+  const std::string live = out + ".partial/trajectory_live.txt";
+  for (int i = 0; i < 6000 && poses(live) < 10; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_EQ(::kill(pid, SIGKILL), 0);
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the run ended before it was killed";
+  const int had = poses(live);
+  EXPECT_GE(had, 10);
+  EXPECT_FALSE(std::filesystem::exists(out + "/summary.txt")) << "an unfinished run is never committed";
+
+  const auto [rc, text] = runProgram("run --dataset '" + data + "' --out '" + out + "' --max-frames 3 --no-mesh-eval");
+  EXPECT_EQ(rc, 0) << text;
+  EXPECT_NE(
+      text.find("an earlier run into " + out + " was interrupted; what it wrote is kept in " + out + ".interrupted-"),
+      std::string::npos)
+      << text;
+  int kept = 0;
+  for (const auto& e : std::filesystem::directory_iterator(std::filesystem::path(out).parent_path())) {
+    if (e.path().filename().string().rfind("out.interrupted-", 0) == 0) {
+      ++kept;
+      EXPECT_EQ(poses((e.path() / "trajectory_live.txt").string()), had);
+    }
+  }
+  EXPECT_EQ(kept, 1);
+  EXPECT_EQ(poses(out + "/trajectory_live.txt"), 3);
 }
 
 TEST(RunCommand, HangUpStopsTheRunLikeTermination) {

@@ -301,6 +301,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("shed_after_periods", c.runtime.shed_after_periods, 1, 100000);
   v.integer("background_nice", c.runtime.background_nice, 0, 19);
   v.number("max_lost_share", c.runtime.max_lost_share, 0, 1);
+  v.number("checkpoint_s", c.runtime.checkpoint_s, 0, 1e6);
 
   auto& g = c.rig;
   v.section("rig");

@@ -86,6 +86,11 @@ struct RuntimeConfig {
   /// A run that lost more than this share of its frames exits with 1 (the
   /// outputs are still written). 1 = only a run that fused no frame at all.
   double max_lost_share = 1.0;
+  /// Offline runs write the mesh and trajectory into the run's folder this
+  /// often (seconds of wall time; the poses go to trajectory_live.txt
+  /// frame by frame in every run), so a killed run loses at most this
+  /// much. 0 = at the end only.
+  double checkpoint_s = 10;
 };
 
 /// A live color + depth camera pair (drivers/sync): intrinsics and
