@@ -2,11 +2,16 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 #include <CLI/CLI.hpp>
+#include <cstdlib>
 
 #include "commands.hpp"
 #include "hxmap/frontend/frontend.hpp"
 
 int main(int argc, char** argv) {
+  // An image whose header claims more than 8192 x 8192 pixels (the largest
+  // camera hxmap accepts) is refused by OpenCV's decoders instead of
+  // allocating for it (its default allows 2^30 pixels).
+  ::setenv("OPENCV_IO_MAX_IMAGE_PIXELS", "67108864", 0);
   hxmap::rt::keepHeapBetweenFrames();
   spdlog::set_default_logger(spdlog::stderr_color_mt("hxmap"));
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");

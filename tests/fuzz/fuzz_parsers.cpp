@@ -1,6 +1,6 @@
-// libFuzzer target for the dataset text parsers and the PLY reader:
-//   cmake -S . -B build-fuzz -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DHXMAP_FUZZ=ON
-//   ninja -C build-fuzz fuzz_parsers && build-fuzz/tests/fuzz_parsers -max_total_time=60
+// libFuzzer target: the dataset text parsers (TUM lists and trajectories,
+// Replica's matrix trajectories) and the PLY reader. `bash .ci/fuzz` builds
+// and runs every target (tests/fuzz/corpus/ holds their seeds).
 #include <cstddef>
 #include <cstdint>
 #include <string>

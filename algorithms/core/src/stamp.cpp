@@ -17,7 +17,7 @@ std::optional<int64_t> parseStampNs(std::string_view text) {
   size_t int_digits = 0;
   for (; i < text.size() && text[i] != '.'; ++i) {
     const char c = text[i];
-    if (c < '0' || c > '9' || int_digits >= 11) return std::nullopt;
+    if (c < '0' || c > '9' || int_digits >= 10) return std::nullopt;
     seconds = seconds * 10 + (c - '0');
     ++int_digits;
   }
@@ -35,6 +35,9 @@ std::optional<int64_t> parseStampNs(std::string_view text) {
     }
   }
   if (int_digits == 0 && frac_digits == 0) return std::nullopt;
+  // Up to 9e9 s (the year 2255): beyond, seconds * 1e9 leaves int64.
+  constexpr int64_t kMaxSeconds = 9'000'000'000LL;
+  if (seconds > kMaxSeconds) return std::nullopt;
   for (size_t d = frac_digits; d < 9; ++d) frac_ns *= 10;
   const int64_t ns = seconds * 1000000000LL + frac_ns;
   return negative ? -ns : ns;

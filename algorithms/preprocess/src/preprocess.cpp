@@ -33,7 +33,7 @@ HXMAP_SIMD_CLONES void addTap(const float* zc, const float* zn, const float* inv
     const float d = n - zc[u];
     const float x = d * d * inv2[u];
     const float e = ws * expNeg(x);  // computed for every tap: no branch
-    const float w = (n > 0.0f) & (x <= kRangeCut) ? e : 0.0f;
+    const float w = ((n > 0.0f) & (x <= kRangeCut)) ? e : 0.0f;
     sum[u] += w * n;
     wsum[u] += w;
   }

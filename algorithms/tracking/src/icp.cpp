@@ -280,8 +280,9 @@ void accumulate(const FramePoints& points, const ModelView& model, const Eigen::
       const cv::Vec3f& qv = vertices[pixel];
       const float dx = proj.x[0][i] - qv[0], dy = proj.x[1][i] - qv[1], dz = proj.x[2][i] - qv[2];
       const float cos_n = proj.n[0][i] * qn[0] + proj.n[1][i] * qn[1] + proj.n[2][i] * qn[2];
-      const bool keep = (proj.ok[i] != 0) & ((qn[0] != 0) | (qn[1] != 0) | (qn[2] != 0)) &
-                        (dx * dx + dy * dy + dz * dz <= max_d2) & (cos_n >= cos_max);
+      const bool has_normal =
+          (static_cast<int>(qn[0] != 0) | static_cast<int>(qn[1] != 0) | static_cast<int>(qn[2] != 0)) != 0;
+      const bool keep = (proj.ok[i] != 0) & has_normal & (dx * dx + dy * dy + dz * dz <= max_d2) & (cos_n >= cos_max);
       for (int j = 0; j < 3; ++j) {
         rows.x[j][n] = proj.x[j][i];
         rows.q[j][n] = qv[j];

@@ -2,14 +2,20 @@
 
 #include <algorithm>
 #include <cmath>
-#include <tuple>
+#include <csetjmp>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <limits>
 #include <map>
+#include <memory>
 #include <sstream>
+#include <tuple>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <jpeglib.h>
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 #include <opencv2/calib3d.hpp>
@@ -78,6 +84,72 @@ bool endsWithJpegEoi(const std::string& bytes) {
   return false;
 }
 
+// A JPEG decoded by libjpeg itself, so that its warnings count: corrupt
+// entropy-coded data (garbage inside the image, a cut-off scan) decodes to
+// a plausible-looking picture that OpenCV's decoder passes on silently.
+struct JpegErrors {
+  jpeg_error_mgr mgr{};
+  std::jmp_buf jump{};
+  int warnings = 0;
+  std::string first;
+};
+
+void jpegErrorExit(j_common_ptr cinfo) {
+  auto* e = reinterpret_cast<JpegErrors*>(cinfo->err);
+  char text[JMSG_LENGTH_MAX];
+  (*cinfo->err->format_message)(cinfo, text);
+  e->first = text;
+  std::longjmp(e->jump, 1);
+}
+
+void jpegMessage(j_common_ptr cinfo, int level) {
+  if (level >= 0) return;  // trace messages
+  auto* e = reinterpret_cast<JpegErrors*>(cinfo->err);
+  if (e->warnings++ == 0) {
+    char text[JMSG_LENGTH_MAX];
+    (*cinfo->err->format_message)(cinfo, text);
+    e->first = text;
+  }
+}
+
+// RGB (or an error naming what libjpeg found); one decode, as OpenCV's.
+Expected<cv::Mat> decodeJpegRgb(const std::string& b, const std::string& path, const std::string& ref) {
+  jpeg_decompress_struct cinfo{};
+  JpegErrors errors;
+  cinfo.err = jpeg_std_error(&errors.mgr);
+  errors.mgr.error_exit = jpegErrorExit;
+  errors.mgr.emit_message = jpegMessage;
+  // The image lives on the heap: only the pointee changes after setjmp, so
+  // the pointer is still valid when libjpeg's error handler jumps back.
+  const auto rgb = std::make_unique<cv::Mat>();
+  if (setjmp(errors.jump) != 0) {
+    jpeg_destroy_decompress(&cinfo);
+    return Error{fmt::format("{}: {} is corrupt: {}", ref, path, errors.first)};
+  }
+  jpeg_create_decompress(&cinfo);
+  jpeg_mem_src(&cinfo, reinterpret_cast<const unsigned char*>(b.data()), static_cast<unsigned long>(b.size()));
+  jpeg_read_header(&cinfo, TRUE);
+  if (cinfo.image_width > 8192 || cinfo.image_height > 8192) {
+    const std::string size = fmt::format("{}x{}", cinfo.image_width, cinfo.image_height);
+    jpeg_destroy_decompress(&cinfo);
+    return Error{fmt::format("{}: {} is {} pixels, larger than 8192 on a side", ref, path, size)};
+  }
+  cinfo.out_color_space = JCS_RGB;
+  jpeg_start_decompress(&cinfo);
+  rgb->create(static_cast<int>(cinfo.output_height), static_cast<int>(cinfo.output_width), CV_8UC3);
+  while (cinfo.output_scanline < cinfo.output_height) {
+    JSAMPROW row = rgb->ptr<uint8_t>(static_cast<int>(cinfo.output_scanline));
+    jpeg_read_scanlines(&cinfo, &row, 1);
+  }
+  jpeg_finish_decompress(&cinfo);
+  jpeg_destroy_decompress(&cinfo);
+  if (errors.warnings > 0) {
+    return Error{fmt::format("{}: {} has corrupt JPEG data ({}{})", ref, path, errors.first,
+                             errors.warnings > 1 ? fmt::format(", and {} more warnings", errors.warnings - 1) : "")};
+  }
+  return *rgb;
+}
+
 }  // namespace
 
 Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, bool depth16) {
@@ -85,7 +157,13 @@ Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, boo
   if (!fs::is_regular_file(path, ec)) return Error{fmt::format("{}: listed file {} does not exist", ref, path)};
   auto bytes = readTextFile(path);
   if (!bytes) return Error{fmt::format("{}: {}", ref, bytes.message())};
-  const std::string& b = *bytes;
+  return decodeImage(*bytes, path, ref, depth16);
+}
+
+Expected<cv::Mat> decodeImage(const std::string& b, const std::string& path, const std::string& ref, bool depth16) {
+  if (b.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
+    return Error{fmt::format("{}: {} is larger than 2 GiB", ref, path)};
+  }
   const bool is_png = b.size() >= 8 && b.compare(0, 8, "\x89PNG\r\n\x1a\n") == 0;
   const bool is_jpeg = b.size() >= 3 && static_cast<uint8_t>(b[0]) == 0xFF && static_cast<uint8_t>(b[1]) == 0xD8;
   if (!is_png && !is_jpeg) return Error{fmt::format("{}: {} is not a PNG or JPEG image", ref, path)};
@@ -94,6 +172,12 @@ Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, boo
   }
   if (is_jpeg && !endsWithJpegEoi(b))
     return Error{fmt::format("{}: {} is a truncated JPEG (no EOI marker)", ref, path)};
+  if (is_jpeg) {
+    if (depth16) {
+      return Error{fmt::format("{}: depth image {} is a JPEG (8-bit), expected 16-bit single-channel", ref, path)};
+    }
+    return decodeJpegRgb(b, path, ref);
+  }
   cv::Mat img;
   try {
     const cv::Mat buf(1, static_cast<int>(b.size()), CV_8UC1, const_cast<char*>(b.data()));
@@ -148,21 +232,49 @@ Expected<std::unique_ptr<Dataset>> Dataset::open(const std::string& dir, const D
 }
 
 namespace {
-struct Calibration {
-  alg::PinholeCamera camera;
-  double depth_scale = 5000.0;
-  double sensor_grazing_cos = 0.0;
+constexpr int kMaxSide = 8192;
+
+// The names a calibration file gives the intrinsics.
+struct IntrinsicKeys {
+  const char *fx, *fy, *cx, *cy, *width, *height, *depth_scale;
 };
 
-// calibration.yaml, every value checked like the configuration's: all
-// problems reported together, each with the file, line and key.
-Expected<Calibration> readCalibrationYaml(const std::string& path) {
-  static const char* const kKeys[] = {"fx",          "fy",         "cx",        "cy", "width", "height",
-                                      "distortion",  "depth_scale", "sensor_grazing_cos"};
-  constexpr int kMaxSide = 8192;
+// Focal lengths, image size, principal point and depth scale checked
+// alike for every calibration file: each problem with where() of its key.
+void checkIntrinsics(const IntrinsicKeys& k, const std::function<std::string(const char*)>& where, double width,
+                     double height, Calibration& c, std::vector<std::string>& problems) {
+  alg::PinholeCamera& cam = c.camera;
+  for (const auto& [key, value] : {std::pair{k.fx, cam.fx}, {k.fy, cam.fy}}) {
+    if (!(std::isfinite(value) && value > 0)) {
+      problems.push_back(fmt::format("{} must be a positive focal length in pixels, got {}", where(key), value));
+    }
+  }
+  for (const auto& [key, value] : {std::pair{k.width, width}, {k.height, height}}) {
+    if (!(value >= 1 && value <= kMaxSide && value == std::floor(value))) {
+      problems.push_back(
+          fmt::format("{} must be a whole number of pixels in [1, {}], got {}", where(key), kMaxSide, value));
+    }
+  }
+  cam.width = width >= 1 && width <= kMaxSide ? static_cast<int>(width) : 1;
+  cam.height = height >= 1 && height <= kMaxSide ? static_cast<int>(height) : 1;
+  for (const auto& [key, value, side] : {std::tuple{k.cx, cam.cx, width}, {k.cy, cam.cy, height}}) {
+    if (!(std::isfinite(value) && value >= 0 && value < side)) {
+      problems.push_back(fmt::format("{} must lie inside the image, [0, {}), got {}", where(key), side, value));
+    }
+  }
+  if (!(std::isfinite(c.depth_scale) && c.depth_scale > 0)) {
+    problems.push_back(
+        fmt::format("{} must be positive (raw depth units per meter), got {}", where(k.depth_scale), c.depth_scale));
+  }
+}
+}  // namespace
+
+Expected<Calibration> parseCalibrationYaml(const std::string& text, const std::string& path) {
+  static const char* const kKeys[] = {
+      "fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale", "sensor_grazing_cos"};
   YAML::Node n;
   try {
-    n = YAML::LoadFile(path);
+    n = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     return Error{fmt::format("{}: {}", path, e.what())};
   }
@@ -201,29 +313,9 @@ Expected<Calibration> readCalibrationYaml(const std::string& path) {
   const double width = number("width", true, 1.0), height = number("height", true, 1.0);
   c.depth_scale = number("depth_scale", false, 5000.0);
   c.sensor_grazing_cos = number("sensor_grazing_cos", false, 0.0);
-  for (const auto& [key, value] : {std::pair{"fx", cam.fx}, {"fy", cam.fy}}) {
-    if (!(std::isfinite(value) && value > 0)) {
-      problems.push_back(fmt::format("{} must be a positive focal length in pixels, got {}", where(n[key], key), value));
-    }
-  }
-  for (const auto& [key, value] : {std::pair{"width", width}, {"height", height}}) {
-    if (!(value >= 1 && value <= kMaxSide && value == std::floor(value))) {
-      problems.push_back(fmt::format("{} must be a whole number of pixels in [1, {}], got {}", where(n[key], key),
-                                     kMaxSide, value));
-    }
-  }
-  cam.width = width >= 1 && width <= kMaxSide ? static_cast<int>(width) : 1;
-  cam.height = height >= 1 && height <= kMaxSide ? static_cast<int>(height) : 1;
-  for (const auto& [key, value, side] : {std::tuple{"cx", cam.cx, width}, {"cy", cam.cy, height}}) {
-    if (!(std::isfinite(value) && value >= 0 && value < side)) {
-      problems.push_back(
-          fmt::format("{} must lie inside the image, [0, {}), got {}", where(n[key], key), side, value));
-    }
-  }
-  if (!(std::isfinite(c.depth_scale) && c.depth_scale > 0)) {
-    problems.push_back(fmt::format("{} must be positive (raw depth units per meter), got {}",
-                                   where(n["depth_scale"], "depth_scale"), c.depth_scale));
-  }
+  checkIntrinsics(
+      {"fx", "fy", "cx", "cy", "width", "height", "depth_scale"}, [&](const char* key) { return where(n[key], key); },
+      width, height, c, problems);
   if (!(c.sensor_grazing_cos >= 0 && c.sensor_grazing_cos < 1)) {
     problems.push_back(fmt::format("{} must lie in [0, 1), got {}", where(n["sensor_grazing_cos"], "sensor_grazing_cos"),
                                    c.sensor_grazing_cos));
@@ -248,7 +340,52 @@ Expected<Calibration> readCalibrationYaml(const std::string& path) {
   }
   return c;
 }
-}  // namespace
+
+Expected<Calibration> parseReplicaCamParams(const std::string& text, const std::string& path) {
+  YAML::Node n;
+  try {
+    n = YAML::Load(text);  // JSON is valid YAML
+  } catch (const YAML::Exception& e) {
+    return Error{fmt::format("{}: {}", path, e.what())};
+  }
+  const YAML::Node c = n.IsMap() && n["camera"] ? n["camera"] : n;
+  if (!c.IsMap()) return Error{path + ": expected an object with camera.fx fy cx cy w h [scale]"};
+  std::vector<std::string> problems;
+  auto number = [&](const char* key, bool required, double fallback) -> double {
+    const YAML::Node v = c[key];
+    if (!v) {
+      if (required) problems.push_back(fmt::format("{}: missing key 'camera.{}'", path, key));
+      return fallback;
+    }
+    try {
+      return v.as<double>();
+    } catch (const YAML::Exception&) {
+      problems.push_back(fmt::format("{}:{}: camera.{} must be a number", path, v.Mark().line + 1, key));
+      return fallback;
+    }
+  };
+  Calibration out;
+  alg::PinholeCamera& cam = out.camera;
+  cam.fx = number("fx", true, 1.0);
+  cam.fy = number("fy", true, 1.0);
+  cam.cx = number("cx", true, 0.0);
+  cam.cy = number("cy", true, 0.0);
+  const double width = number("w", true, 1.0), height = number("h", true, 1.0);
+  out.depth_scale = number("scale", false, 6553.5);
+  checkIntrinsics(
+      {"fx", "fy", "cx", "cy", "w", "h", "scale"},
+      [&](const char* key) {
+        const YAML::Node v = c[key];
+        return v ? fmt::format("{}:{}: camera.{}", path, v.Mark().line + 1, key)
+                 : fmt::format("{}: camera.{}", path, key);
+      },
+      width, height, out, problems);
+  if (!problems.empty()) {
+    return Error{
+        fmt::format("{} problem(s) in the camera parameters:\n{}", problems.size(), fmt::join(problems, "\n"))};
+  }
+  return out;
+}
 
 Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
   const fs::path dir(d.dir_);
@@ -299,7 +436,9 @@ Status Dataset::openTum(Dataset& d, const DatasetOptions& options) {
   const fs::path calib = dir / "calibration.yaml";
   const std::string name = dir.filename().string();
   if (fs::exists(calib)) {
-    auto c = readCalibrationYaml(calib.string());
+    auto text = readTextFile(calib.string());
+    if (!text) return text.error();
+    auto c = parseCalibrationYaml(*text, calib.string());
     if (!c) return Error{c.message()};
     d.camera_ = c->camera;
     d.camera_source_ = calib.string();
@@ -376,20 +515,13 @@ Status Dataset::openReplica(Dataset& d, const DatasetOptions& options) {
   }
   for (const fs::path& p : {dir / "cam_params.json", dir.parent_path() / "cam_params.json"}) {
     if (!fs::exists(p)) continue;
-    try {
-      const YAML::Node n = YAML::LoadFile(p.string());  // JSON is valid YAML
-      const YAML::Node c = n["camera"] ? n["camera"] : n;
-      d.camera_.fx = c["fx"].as<double>();
-      d.camera_.fy = c["fy"].as<double>();
-      d.camera_.cx = c["cx"].as<double>();
-      d.camera_.cy = c["cy"].as<double>();
-      d.camera_.width = c["w"].as<int>();
-      d.camera_.height = c["h"].as<int>();
-      d.depth_scale_ = c["scale"] ? c["scale"].as<double>() : 6553.5;
-      d.camera_source_ = p.string();
-    } catch (const YAML::Exception& e) {
-      return Error{fmt::format("{}: {} (expected camera.fx fy cx cy w h scale)", p.string(), e.what())};
-    }
+    auto text = readTextFile(p.string());
+    if (!text) return text.error();
+    auto c = parseReplicaCamParams(*text, p.string());
+    if (!c) return c.error();
+    d.camera_ = c->camera;
+    d.depth_scale_ = c->depth_scale;
+    d.camera_source_ = p.string();
     break;
   }
   if (d.camera_source_.empty()) d.depth_scale_ = 6553.5;

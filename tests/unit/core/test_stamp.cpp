@@ -19,6 +19,15 @@ TEST(Stamp, RejectsGarbage) {
   }
 }
 
+TEST(Stamp, RejectsStampsBeyondTheInt64Range) {
+  // Found by the fuzzer: 11 digits of seconds overflowed seconds * 1e9.
+  EXPECT_FALSE(parseStampNs("13050310989"));
+  EXPECT_FALSE(parseStampNs("9999999999.5"));
+  EXPECT_FALSE(parseStampNs("-9000000001"));
+  EXPECT_EQ(parseStampNs("9000000000.000000001").value(), 9'000'000'000'000'000'001LL);
+  EXPECT_EQ(parseStampNs("-9000000000").value(), -9'000'000'000'000'000'000LL);
+}
+
 TEST(Stamp, FormatsRoundTrip) {
   EXPECT_EQ(formatStampS(1305031102175304000LL), "1305031102.175304");
   EXPECT_EQ(parseStampNs(formatStampS(1000033333000LL)).value(), 1000033333000LL);

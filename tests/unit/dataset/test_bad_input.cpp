@@ -240,6 +240,25 @@ TEST_F(BadReplica, TruncatedJpeg) {
   EXPECT_NE(f.message().find("frame000001.jpg is a truncated JPEG"), std::string::npos) << f.message();
 }
 
+TEST_F(BadReplica, GarbageInsideTheJpegDataIsAnError) {
+  // The file is whole (SOI ... EOI) but its compressed data is not: the
+  // decoder would hand out a damaged picture; it is an error naming it.
+  const fs::path jpg = fs::path(dir_) / "results/frame000001.jpg";
+  std::string bytes = readFile(jpg);
+  const size_t sos = bytes.find("\xFF\xDA");
+  ASSERT_NE(sos, std::string::npos);
+  const size_t middle = sos + (bytes.size() - sos) / 2;
+  bytes.replace(middle, 6, "\xFF\xD0\x13\x37\xFF\xD3");  // stray restart markers and junk in the scan
+  writeFile(jpg, bytes);
+  auto d = Dataset::open(dir_);
+  ASSERT_TRUE(d) << d.message();
+  auto f = (*d)->load(1);
+  ASSERT_FALSE(f);
+  EXPECT_NE(f.message().find("frame000001.jpg has corrupt JPEG data"), std::string::npos) << f.message();
+  auto intact = (*d)->load(0);
+  ASSERT_TRUE(intact) << intact.message();
+}
+
 TEST_F(BadReplica, NonRigidPose) {
   writeFile(fs::path(dir_) / "traj.txt", "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0.5 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n");
   auto d = Dataset::open(dir_);
@@ -258,6 +277,33 @@ TEST_F(BadReplica, MissingDepthAndShortTrajectory) {
   ASSERT_TRUE(skipped) << skipped.message();
   EXPECT_EQ((*skipped)->size(), 1u);
   EXPECT_EQ((*skipped)->skippedAtOpen().size(), 1u);
+}
+
+TEST_F(BadReplica, EveryBadCameraParameterIsReportedWithItsKey) {
+  // Sizes OpenCV would choke on, a negative focal length, a principal
+  // point outside the image, a zero depth scale: one error naming all.
+  const fs::path params = fs::path(dir_) / "cam_params.json";
+  writeFile(params,
+            "{\"camera\": {\"w\": 200000, \"h\": 48, \"fx\": -60.0, \"fy\": 60.0, \"cx\": 31.5,\n"
+            "  \"cy\": 99.0, \"scale\": 0}}");
+  auto d = Dataset::open(dir_);
+  ASSERT_FALSE(d);
+  const std::string& m = d.message();
+  EXPECT_NE(m.find("4 problem(s) in the camera parameters"), std::string::npos) << m;
+  EXPECT_NE(m.find(params.string() + ":1: camera.fx must be a positive focal length"), std::string::npos) << m;
+  EXPECT_NE(m.find(params.string() + ":1: camera.w must be a whole number of pixels in [1, 8192]"), std::string::npos)
+      << m;
+  EXPECT_NE(m.find(params.string() + ":2: camera.cy must lie inside the image, [0, 48)"), std::string::npos) << m;
+  EXPECT_NE(m.find(params.string() + ":2: camera.scale must be positive"), std::string::npos) << m;
+  writeFile(params, R"({"camera": {"w": 64, "h": 48, "fx": 60.0, "fy": 60.0, "cx": 31.5}})");
+  auto missing = Dataset::open(dir_);
+  ASSERT_FALSE(missing);
+  EXPECT_NE(missing.message().find(params.string() + ": missing key 'camera.cy'"), std::string::npos)
+      << missing.message();
+  writeFile(params, "[1, 2");
+  auto broken = Dataset::open(dir_);
+  ASSERT_FALSE(broken);
+  EXPECT_EQ(broken.message().rfind(params.string() + ": ", 0), 0u) << broken.message();
 }
 
 }  // namespace

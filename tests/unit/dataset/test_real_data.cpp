@@ -1,5 +1,9 @@
 // Values read from the real data slices in ../shared/data.
+#include <filesystem>
+
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "hxmap/dataset/dataset.hpp"
 #include "test_data.hpp"
@@ -9,6 +13,34 @@ namespace {
 
 constexpr const char* kTum = "tum/rgbd_dataset_freiburg1_xyz_first40";
 constexpr const char* kReplica = "replica/room0_first20/room0";
+constexpr const char* kTumFull = "tum/rgbd_dataset_freiburg1_xyz";
+
+TEST(RealData, JpegsDecodeToTheSamePixelsAsOpenCvs) {
+  // Color JPEGs go through libjpeg directly (so corrupt data is caught);
+  // the pixels must be OpenCV's, bit for bit: the whole fr1/xyz recording
+  // (re-encoded as JPEG) and Replica's frames.
+  for (const std::string& rel : {std::string(kTumFull) + "/rgb", std::string(kReplica) + "/results"}) {
+    HXMAP_REQUIRE_SHARED_DATA(rel);
+    int compared = 0;
+    for (const auto& e : std::filesystem::directory_iterator(test::sharedData(rel))) {
+      if (compared == 8) break;
+      auto bytes = readTextFile(e.path().string());
+      ASSERT_TRUE(bytes) << bytes.message();
+      if (bytes->size() < 2 || static_cast<uint8_t>((*bytes)[0]) != 0xFF || static_cast<uint8_t>((*bytes)[1]) != 0xD8) {
+        continue;  // not a JPEG (depth PNGs beside the color)
+      }
+      auto ours = decodeImage(*bytes, e.path().string(), "rgb.txt", false);
+      ASSERT_TRUE(ours) << ours.message();
+      cv::Mat bgr = cv::imread(e.path().string(), cv::IMREAD_COLOR), rgb;
+      cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+      ASSERT_EQ(ours->size(), rgb.size());
+      ASSERT_EQ(ours->type(), rgb.type());
+      EXPECT_EQ(cv::norm(*ours, rgb, cv::NORM_INF), 0.0) << e.path();
+      ++compared;
+    }
+    EXPECT_EQ(compared, 8) << rel << " holds JPEG color images";
+  }
+}
 
 TEST(RealTum, AssociationIntrinsicsAndGroundTruth) {
   HXMAP_REQUIRE_SHARED_DATA(kTum);

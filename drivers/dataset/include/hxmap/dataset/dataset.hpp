@@ -101,6 +101,21 @@ alg::PinholeCamera tumCameraPreset(int freiburg);
 /// 319.5, 239.5 at 640x480, no distortion: the ROS default).
 alg::PinholeCamera cameraPreset(const std::string& name);
 
+/// A dataset's own camera: intrinsics (with distortion), raw depth units
+/// per meter, and the depth sensor's grazing-angle limit.
+struct Calibration {
+  alg::PinholeCamera camera;
+  double depth_scale = 5000.0;
+  double sensor_grazing_cos = 0.0;
+};
+/// calibration.yaml (fx fy cx cy width height, optional distortion,
+/// depth_scale, sensor_grazing_cos), every value checked like the
+/// configuration's: all problems reported together, each with `path`, line
+/// and key; sizes up to 8192 pixels.
+Expected<Calibration> parseCalibrationYaml(const std::string& text, const std::string& path);
+/// Replica's cam_params.json (camera.fx fy cx cy w h scale), checked alike.
+Expected<Calibration> parseReplicaCamParams(const std::string& text, const std::string& path);
+
 /// Reads a whole file; error names the path.
 Expected<std::string> readTextFile(const std::string& path);
 
@@ -109,5 +124,9 @@ Expected<std::string> readTextFile(const std::string& path);
 /// single-channel 16-bit image, otherwise 8-bit color (returned as RGB).
 /// `ref` is how the caller names the file in messages ("rgb.txt:12").
 Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, bool depth16);
+/// The same checks and decoding on an image file's bytes (`path` names it
+/// in messages). Images above OPENCV_IO_MAX_IMAGE_PIXELS (hxmap sets 8192²)
+/// are refused by the decoder.
+Expected<cv::Mat> decodeImage(const std::string& bytes, const std::string& path, const std::string& ref, bool depth16);
 
 }  // namespace hxmap::drv
