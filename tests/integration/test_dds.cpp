@@ -21,6 +21,7 @@
 #include "hxmap/dds/entity.hpp"
 #include "hxmap/dds/messages.hpp"
 #include "hxmap/dds/publisher.hpp"
+#include "hxmap/dds/type_hash.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/patch.hpp"
 
@@ -379,6 +380,70 @@ TEST(DdsLoopback, EveryWriterOffersXcdr1Only) {
     dds_free(ids);
     dds_delete_qos(qos);
   }
+}
+
+TEST(RosTypeHash, Sha256MatchesTheStandardsTestVectors) {
+  EXPECT_EQ(sha256Hex(""), "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+  EXPECT_EQ(sha256Hex("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+  EXPECT_EQ(sha256Hex("abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq"),
+            "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1");
+  EXPECT_EQ(sha256Hex(std::string(1000000, 'a')), "cdc76e5c9914fb9281a1c7e284d73e67f1809a48a497200e046d39ccc7112cd0");
+}
+
+TEST(RosTypeHash, AreThoseRos2JazzyComputesForTheSameTypes) {
+  // The values ROS 2 Jazzy's rosidl generates from geometry_msgs and
+  // nav_msgs; hxmap computes them from its own IDL.
+  const auto& hashes = wireTypeHashes();
+  EXPECT_EQ(hashes.at("geometry_msgs::msg::dds_::PoseStamped_"),
+            "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8");
+  EXPECT_EQ(hashes.at("nav_msgs::msg::dds_::Path_"),
+            "RIHS01_1957a5bb3cee5da65c4e52e52b65a93df227efce4c20f8458b36e73066ca334b");
+  for (Topic t : kAllTopics) EXPECT_EQ(hashes.count(topicType(t)->m_typename), 1u) << topicType(t)->m_typename;
+  // A type that does not follow the convention is an error with its line.
+  auto bad = rosTypeHashes("module a {\n struct B { int32 x; };\n};\n", "t.idl");
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.message().find("t.idl:2: struct a::B is not named pkg::msg::dds_::Name_"), std::string::npos)
+      << bad.message();
+}
+
+TEST(DdsLoopback, EndpointsAndTheParticipantSayWhatRos2NodesSay) {
+  // What a ROS 2 Jazzy node reads from discovery: `enclave=/;` on the
+  // participant, `typehash=RIHS01_...;` on every endpoint.
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  const std::string topic = topicName(Topic::kPose, prefix("typehash"));
+  auto w = Writer::create(*participant, topicType(Topic::kPose), topic, topicQos(Topic::kPose));
+  ASSERT_TRUE(w) << w.message();
+  auto userData = [](const dds_qos_t* qos) {
+    void* value = nullptr;
+    size_t size = 0;
+    std::string s;
+    if (qos && dds_qget_userdata(qos, &value, &size) && value) s.assign(static_cast<const char*>(value), size);
+    dds_free(value);
+    return s;
+  };
+  const dds_entity_t pubs = dds_create_reader(participant->get(), DDS_BUILTIN_TOPIC_DCPSPUBLICATION, nullptr, nullptr);
+  ASSERT_GT(pubs, 0);
+  std::string seen;
+  EXPECT_TRUE(waitFor(
+      [&] {
+        void* samples[8] = {};
+        dds_sample_info_t infos[8];
+        const int n = dds_take(pubs, samples, infos, 8, 8);
+        for (int k = 0; k < n; ++k) {
+          const auto* e = static_cast<const dds_builtintopic_endpoint_t*>(samples[k]);
+          if (infos[k].valid_data && topic == e->topic_name) seen = userData(e->qos);
+        }
+        if (n > 0) dds_return_loan(pubs, samples, n);
+        return !seen.empty();
+      },
+      10.0));
+  EXPECT_EQ(seen, "typehash=RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8;");
+  dds_qos_t* qos = dds_create_qos();
+  ASSERT_EQ(dds_get_qos(participant->get(), qos), DDS_RETCODE_OK);
+  EXPECT_EQ(userData(qos), "enclave=/;");
+  dds_delete_qos(qos);
+  dds_delete(pubs);
 }
 
 TEST(DdsLoopback, ThePathCarriesTheNewestPosesOnly) {

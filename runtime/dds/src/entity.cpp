@@ -5,6 +5,8 @@
 
 #include <fmt/format.h>
 
+#include "hxmap/dds/type_hash.hpp"
+
 namespace hxmap::rt::dds {
 
 namespace {
@@ -13,6 +15,17 @@ struct QosDeleter {
   void operator()(dds_qos_t* q) const { dds_delete_qos(q); }
 };
 using QosPtr = std::unique_ptr<dds_qos_t, QosDeleter>;
+
+// `type`'s ROS 2 type hash in USER_DATA, as rmw_cyclonedds sets it on the
+// endpoints of ROS 2 nodes (Jazzy reads it to place the endpoint in the
+// ROS graph and to check that both ends agree on the type).
+void setTypeHash(dds_qos_t* qos, const dds_topic_descriptor_t* type) {
+  const auto& hashes = wireTypeHashes();
+  const auto it = hashes.find(type->m_typename);
+  if (it == hashes.end()) return;
+  const std::string user_data = "typehash=" + it->second + ";";
+  dds_qset_userdata(qos, user_data.data(), user_data.size());
+}
 
 QosPtr makeQos(const TopicQos& q) {
   QosPtr qos(dds_create_qos());
@@ -46,7 +59,11 @@ void Entity::reset() {
 }
 
 Expected<Participant> Participant::create(uint32_t domain_id) {
-  const dds_entity_t p = dds_create_participant(domain_id, nullptr, nullptr);
+  // As a ROS 2 node's participant says it (the default security enclave).
+  QosPtr qos(dds_create_qos());
+  const std::string enclave = "enclave=/;";
+  dds_qset_userdata(qos.get(), enclave.data(), enclave.size());
+  const dds_entity_t p = dds_create_participant(domain_id, qos.get(), nullptr);
   if (p < 0) {
     return ddsError(fmt::format("creating a participant in domain {} (check CYCLONEDDS_URI and the network interface it names)",
                                 domain_id),
@@ -65,6 +82,7 @@ Expected<Writer> Writer::create(const Participant& participant, const dds_topic_
   if (!t) return t.error();
   w.topic_entity_ = std::move(*t);
   const QosPtr q = makeQos(qos);
+  setTypeHash(q.get(), type);
   const dds_entity_t h = dds_create_writer(participant.get(), w.topic_entity_.get(), q.get(), nullptr);
   if (h < 0) return ddsError(fmt::format("creating a writer on '{}'", topic), h);
   w.writer_ = Entity(h);
@@ -91,6 +109,7 @@ Expected<Reader> Reader::create(const Participant& participant, const dds_topic_
   if (!t) return t.error();
   r.topic_entity_ = std::move(*t);
   const QosPtr q = makeQos(qos);
+  setTypeHash(q.get(), type);
   const dds_entity_t h = dds_create_reader(participant.get(), r.topic_entity_.get(), q.get(), nullptr);
   if (h < 0) return ddsError(fmt::format("creating a reader on '{}'", topic), h);
   r.reader_ = Entity(h);
