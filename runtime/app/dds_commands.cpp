@@ -11,6 +11,7 @@
 #include "dds_glue.hpp"
 #include "hxmap/dds/entity.hpp"
 #include "hxmap/dds/messages.hpp"
+#include "hxmap/geometry/se3.hpp"
 #include "stop_signals.hpp"
 
 namespace hxmap::rt {
@@ -38,6 +39,10 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
   p.topic_prefix = c.dds.topic_prefix;
   p.frame_id = c.dds.frame_id;
   p.child_frame_id = c.dds.child_frame_id;
+  p.base_frame_id = c.dds.base_frame_id;
+  p.T_base_cam = alg::mountedOptical(
+      {c.dds.base_to_camera_x_m, c.dds.base_to_camera_y_m, c.dds.base_to_camera_z_m},
+      {c.dds.base_to_camera_roll_deg, c.dds.base_to_camera_pitch_deg, c.dds.base_to_camera_yaw_deg});
   p.map_period_s = c.dds.map_period_s;
   p.trajectory_period_s = c.dds.trajectory_period_s;
   p.path_max_poses = c.dds.path_max_poses;
@@ -120,6 +125,7 @@ int echoCommand(const EchoOptions& o) {
         line = dds::describe(dds::fromWire(*static_cast<const hxmap_msgs_msg_dds__Health_*>(sample)));
         break;
       case dds::Topic::kTf:
+      case dds::Topic::kTfStatic:
         for (const auto& t : dds::fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(sample))) {
           if (!line.empty()) line += '\n';
           line += dds::describe(t);

@@ -22,6 +22,7 @@
 #include "hxmap/dds/messages.hpp"
 #include "hxmap/dds/publisher.hpp"
 #include "hxmap/dds/type_hash.hpp"
+#include "hxmap/geometry/se3.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/patch.hpp"
 
@@ -360,6 +361,67 @@ TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
     EXPECT_LT((t.T_parent_child.matrix() - sent[stamp].matrix()).cwiseAbs().maxCoeff(), 1e-12);
   }
   EXPECT_EQ((*pub)->stats().transforms, 9u);
+}
+
+// With a robot base (REP 105): /tf carries map -> base per tracked frame,
+// /tf_static the camera's mount once, and a late joiner still gets it;
+// the two composed are the camera's pose.
+TEST(DdsLoopback, ABaseFrameGoesOnTfAndTheCameraMountOnTfStatic) {
+  const std::string pre = prefix("tf_base");
+  PublisherParams p = params(pre);
+  p.base_frame_id = pre + "_base_link";
+  p.child_frame_id = pre + "_camera_optical_frame";
+  p.T_base_cam = alg::mountedOptical({0.2, 0.0, 0.3}, {0.0, 10.0, 0.0});  // 20 cm ahead, 30 cm up, tilted 10 deg down
+  auto pub = Publisher::start(p);
+  ASSERT_TRUE(pub) << pub.message();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));  // the static transform is out before anyone listens
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  EXPECT_EQ(topicName(Topic::kTfStatic, pre), "rt/tf_static");
+  auto tf = Reader::create(*participant, topicType(Topic::kTf), "rt/tf", topicQos(Topic::kTf));
+  auto tf_static =
+      Reader::create(*participant, topicType(Topic::kTfStatic), "rt/tf_static", topicQos(Topic::kTfStatic));
+  ASSERT_TRUE(tf && tf_static);
+  std::vector<TransformMessage> fixed;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        (void)tf_static->take([&](const void* s, const dds_sample_info_t&) {
+          for (const auto& x : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
+            if (x.child_frame_id == p.child_frame_id) fixed.push_back(x);
+          }
+        });
+        return !fixed.empty();
+      },
+      20))
+      << "a late joiner receives the static transform";
+  ASSERT_EQ(fixed.size(), 1u);
+  EXPECT_EQ(fixed[0].frame_id, p.base_frame_id);
+  EXPECT_LT((fixed[0].T_parent_child.matrix() - p.T_base_cam.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  // The optical z axis (forward) points along the base's x, tilted down.
+  const Eigen::Vector3d forward = fixed[0].T_parent_child.linear().col(2);
+  EXPECT_NEAR(forward.x(), std::cos(10 * M_PI / 180), 1e-12);
+  EXPECT_NEAR(forward.z(), -std::sin(10 * M_PI / 180), 1e-12);
+
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kTf) > 0 && tf->matchedWriters() > 0; }, 20));
+  alg::TsdfMap map(tsdfParams());
+  Trajectory trajectory;
+  const FrameResult r = frame(4);
+  trajectory.push_back({r.stamp_ns, r.T_world_cam});
+  (*pub)->onFrame(r, map, trajectory, RunCounters{});
+  std::vector<TransformMessage> moving;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        (void)tf->take([&](const void* s, const dds_sample_info_t&) {
+          for (const auto& x : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
+            if (x.child_frame_id == p.base_frame_id) moving.push_back(x);
+          }
+        });
+        return !moving.empty();
+      },
+      20));
+  EXPECT_EQ(moving[0].frame_id, "map");
+  const Eigen::Isometry3d T_map_cam = moving[0].T_parent_child * fixed[0].T_parent_child;
+  EXPECT_LT((T_map_cam.matrix() - r.T_world_cam.matrix()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
 // ROS 2's readers accept XCDR1 only; Cyclone would pick XCDR2 by itself

@@ -38,6 +38,17 @@ Eigen::Isometry3d levelOpticalInZUp() {
   return T;
 }
 
+Eigen::Isometry3d mountedOptical(const Eigen::Vector3d& xyz_m, const Eigen::Vector3d& rpy_deg) {
+  const Eigen::Vector3d r = rpy_deg * (M_PI / 180.0);
+  Eigen::Isometry3d T_base_body = Eigen::Isometry3d::Identity();
+  T_base_body.linear() =
+      (Eigen::AngleAxisd(r.z(), Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(r.y(), Eigen::Vector3d::UnitY()) *
+       Eigen::AngleAxisd(r.x(), Eigen::Vector3d::UnitX()))
+          .toRotationMatrix();
+  T_base_body.translation() = xyz_m;
+  return T_base_body * levelOpticalInZUp();
+}
+
 Eigen::Isometry3d expSE3(const Vector6d& xi) {
   const Eigen::Vector3d omega = xi.head<3>();
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();

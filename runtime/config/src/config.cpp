@@ -25,8 +25,9 @@ class Visitor {
   virtual void integer(const char* key, int& v, int lo, int hi) = 0;
   virtual void boolean(const char* key, bool& v) = 0;
   virtual void choice(const char* key, std::string& v, const std::vector<std::string>& choices) = 0;
-  /// A ROS-style name: letters, digits, '_' and inner '/'.
-  virtual void name(const char* key, std::string& v) = 0;
+  /// A ROS-style name: letters, digits, '_' and inner '/' (empty too when
+  /// `empty_ok`: written "" and meaning none).
+  virtual void name(const char* key, std::string& v, bool empty_ok) = 0;
 };
 
 void visit(HxmapConfig& c, Visitor& v) {
@@ -346,9 +347,16 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.section("dds");
   v.boolean("enabled", d.enabled);
   v.integer("domain_id", d.domain_id, -1, 232);
-  v.name("topic_prefix", d.topic_prefix);
-  v.name("frame_id", d.frame_id);
-  v.name("child_frame_id", d.child_frame_id);
+  v.name("topic_prefix", d.topic_prefix, false);
+  v.name("frame_id", d.frame_id, false);
+  v.name("child_frame_id", d.child_frame_id, false);
+  v.name("base_frame_id", d.base_frame_id, true);
+  v.number("base_to_camera_x_m", d.base_to_camera_x_m, -100, 100);
+  v.number("base_to_camera_y_m", d.base_to_camera_y_m, -100, 100);
+  v.number("base_to_camera_z_m", d.base_to_camera_z_m, -100, 100);
+  v.number("base_to_camera_roll_deg", d.base_to_camera_roll_deg, -180, 180);
+  v.number("base_to_camera_pitch_deg", d.base_to_camera_pitch_deg, -180, 180);
+  v.number("base_to_camera_yaw_deg", d.base_to_camera_yaw_deg, -180, 180);
   v.number("map_period_s", d.map_period_s, 0, 3600);
   v.number("trajectory_period_s", d.trajectory_period_s, 0, 3600);
   v.integer("path_max_poses", d.path_max_poses, 0, 10000000);
@@ -428,10 +436,14 @@ class Loader : public Visitor {
     v = x;
   }
 
-  void name(const char* key, std::string& v) override {
+  void name(const char* key, std::string& v, bool empty_ok) override {
     YAML::Node n;
     if (!find(key, n)) return;
     const std::string x = n.IsScalar() ? n.Scalar() : "";
+    if (empty_ok && x.empty() && (n.IsNull() || n.IsScalar())) {
+      v.clear();
+      return;
+    }
     const bool chars_ok = std::all_of(x.begin(), x.end(), [](char ch) {
       return std::isalnum(static_cast<unsigned char>(ch)) != 0 || ch == '_' || ch == '/';
     });
@@ -520,7 +532,9 @@ class Dumper : public Visitor {
   void choice(const char* key, std::string& v, const std::vector<std::string>&) override {
     out_ += fmt::format("  {}: {}\n", key, v);
   }
-  void name(const char* key, std::string& v) override { out_ += fmt::format("  {}: {}\n", key, v); }
+  void name(const char* key, std::string& v, bool) override {
+    out_ += fmt::format("  {}: {}\n", key, v.empty() ? std::string("\"\"") : v);
+  }
   std::string out_;
 };
 

@@ -59,6 +59,7 @@ std::string stampText(int64_t ns) { return fmt::format("{}.{:09d}", ns / 1000000
 
 std::string topicName(Topic topic, const std::string& prefix) {
   if (topic == Topic::kTf) return "rt/tf";
+  if (topic == Topic::kTfStatic) return "rt/tf_static";
   return fmt::format("rt/{}/{}", prefix, topicShortName(topic));
 }
 
@@ -69,6 +70,8 @@ const char* topicShortName(Topic topic) {
     case Topic::kMap: return "map";
     case Topic::kHealth: return "health";
     case Topic::kTf: return "tf";
+    case Topic::kTfStatic:
+      return "tf_static";
   }
   return "?";
 }
@@ -77,7 +80,7 @@ Expected<Topic> topicFromString(const std::string& name) {
   for (Topic t : kAllTopics) {
     if (name == topicShortName(t)) return t;
   }
-  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health, tf)", name)};
+  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health, tf, tf_static)", name)};
 }
 
 TopicQos topicQos(Topic topic) {
@@ -87,6 +90,8 @@ TopicQos topicQos(Topic topic) {
     case Topic::kMap: return {true, true, 1};
     case Topic::kHealth: return {true, true, 1};
     case Topic::kTf: return {true, false, 100};  // as tf2_ros's TransformBroadcaster
+    case Topic::kTfStatic:
+      return {true, true, 1};  // as tf2_ros's StaticTransformBroadcaster
   }
   return {};
 }
@@ -97,7 +102,9 @@ const dds_topic_descriptor_t* topicType(Topic topic) {
     case Topic::kTrajectory: return &nav_msgs_msg_dds__Path__desc;
     case Topic::kMap: return &hxmap_msgs_msg_dds__MapChunk__desc;
     case Topic::kHealth: return &hxmap_msgs_msg_dds__Health__desc;
-    case Topic::kTf: return &tf2_msgs_msg_dds__TFMessage__desc;
+    case Topic::kTf:
+    case Topic::kTfStatic:
+      return &tf2_msgs_msg_dds__TFMessage__desc;
   }
   return nullptr;
 }

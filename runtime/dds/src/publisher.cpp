@@ -50,6 +50,12 @@ Expected<std::unique_ptr<Publisher>> Publisher::start(const PublisherParams& par
     if (!w) return w.error();
     p->writers_.push_back(std::move(*w));
   }
+  if (!params.base_frame_id.empty()) {
+    // The fixed part, once: transient local, so late joiners get it too.
+    const TransformMessage fixed{0, params.base_frame_id, params.child_frame_id, params.T_base_cam};
+    const TfWire tf(fixed);
+    if (auto s = p->writers_[static_cast<size_t>(Topic::kTfStatic)].write(&tf.wire); !s) return Error{s.message()};
+  }
   p->thread_ = std::thread([raw = p.get()] {
     pthread_setname_np(pthread_self(), "hx-publish");
     raw->run();
@@ -155,7 +161,11 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
     } else {
       recordError(s);
     }
-    const TransformMessage transform{stamp, params_.frame_id, params_.child_frame_id, result.T_world_cam};
+    const TransformMessage transform =
+        params_.base_frame_id.empty()
+            ? TransformMessage{stamp, params_.frame_id, params_.child_frame_id, result.T_world_cam}
+            : TransformMessage{stamp, params_.frame_id, params_.base_frame_id,
+                               result.T_world_cam * params_.T_base_cam.inverse()};
     const TfWire tf(transform);  // points into `transform`
     if (const Status st = writers_[static_cast<size_t>(Topic::kTf)].write(&tf.wire); st) {
       ++transforms_;

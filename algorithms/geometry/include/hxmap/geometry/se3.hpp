@@ -20,6 +20,11 @@ Eigen::Isometry3d expSE3(const Vector6d& xi);
 /// An optical camera (z forward, x right, y down) held level, in a z-up
 /// frame (REP 103: x forward, y left, z up) at its origin.
 Eigen::Isometry3d levelOpticalInZUp();
+/// A camera's optical frame on a robot base (REP 103/105: base x forward, z
+/// up): the camera body at (x, y, z) m, turned by roll, pitch, yaw degrees
+/// (about x, y, z; applied yaw first), optical axes (z forward, x right,
+/// y down) on it. All zero: levelOpticalInZUp() at the base's origin.
+Eigen::Isometry3d mountedOptical(const Eigen::Vector3d& xyz_m, const Eigen::Vector3d& rpy_deg);
 Vector6d logSE3(const Eigen::Isometry3d& T);
 
 /// Rotation angle of T in radians and translation length in meters.

@@ -126,6 +126,12 @@ struct DdsConfig {
   std::string topic_prefix = "hxmap";
   std::string frame_id = "map";        ///< header frame of poses and map
   std::string child_frame_id = "hxmap_camera_optical_frame";  ///< the camera on /tf (optical convention)
+  /// A robot base (REP 105; e.g. "base_link"): /tf carries frame_id ->
+  /// base_frame_id, /tf_static base_frame_id -> child_frame_id, the camera
+  /// mounted at base_to_camera_*. Empty: the camera itself on /tf.
+  std::string base_frame_id;
+  double base_to_camera_x_m = 0, base_to_camera_y_m = 0, base_to_camera_z_m = 0;
+  double base_to_camera_roll_deg = 0, base_to_camera_pitch_deg = 0, base_to_camera_yaw_deg = 0;
   double map_period_s = 1.0;           ///< changed map regions go out at most this often
   double trajectory_period_s = 1.0;
   int path_max_poses = 900;            ///< the Path's newest poses (30 s at 30 FPS; 0: all)

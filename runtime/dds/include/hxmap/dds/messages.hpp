@@ -25,8 +25,9 @@
 
 namespace hxmap::rt::dds {
 
-enum class Topic { kPose, kTrajectory, kMap, kHealth, kTf };
-inline constexpr Topic kAllTopics[] = {Topic::kPose, Topic::kTrajectory, Topic::kMap, Topic::kHealth, Topic::kTf};
+enum class Topic { kPose, kTrajectory, kMap, kHealth, kTf, kTfStatic };
+inline constexpr Topic kAllTopics[] = {Topic::kPose,   Topic::kTrajectory, Topic::kMap,
+                                       Topic::kHealth, Topic::kTf,         Topic::kTfStatic};
 
 /// "rt/<prefix>/pose" and so on; TF is ROS 2's one "rt/tf" whatever the prefix.
 std::string topicName(Topic topic, const std::string& prefix);

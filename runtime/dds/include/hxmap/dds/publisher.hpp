@@ -42,6 +42,12 @@ struct PublisherParams {
   /// The camera's frame on /tf (frame_id -> child_frame_id, the optical
   /// convention: z forward, x right, y down, per REP 103's _optical suffix).
   std::string child_frame_id = "hxmap_camera_optical_frame";
+  /// With a robot base (REP 105): /tf carries frame_id -> base_frame_id per
+  /// tracked frame and /tf_static base_frame_id -> child_frame_id once
+  /// (T_base_cam, the optical frame in the base's). Empty: the camera
+  /// itself goes on /tf.
+  std::string base_frame_id;
+  Eigen::Isometry3d T_base_cam = Eigen::Isometry3d::Identity();
   /// Added to every stamp sent: 0 for recordings (their recorded stamps);
   /// for live cameras, whose stamps are CLOCK_MONOTONIC, the offset of
   /// CLOCK_REALTIME from it, so that stamps are in the ROS clock's epoch.
