@@ -16,6 +16,7 @@
 #include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
+#include "checkpoint.hpp"
 #include "hxmap/camera/camera_source.hpp"
 #include "hxmap/config/config.hpp"
 #include "hxmap/dataset/dataset.hpp"
@@ -25,6 +26,7 @@
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/implicit/detail.hpp"
 #include "hxmap/realtime/realtime.hpp"
 #include "hxmap/scheduler/trace.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
@@ -478,6 +480,17 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   sdNotify(in.camera ? fmt::format("READY=1\nSTATUS=mapping from {}", in.camera->name())
                      : fmt::format("READY=1\nSTATUS=playing {} frames", loaded.size()));
   const bool watchdog = sdWatchdogUsec() > 0;
+  // The map and trajectory into the run's folder every checkpoint_s (the
+  // poses go to trajectory_live.txt frame by frame).
+  CheckpointWriter checkpoints(
+      [&](const MapCheckpoint& cp) {
+        Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(cp.trajectory));
+        if (s) s = drv::writePly(p.folder.path("mesh.ply"), alg::extractHybridMesh(*cp.map, c.mesh, cp.details));
+        if (!s) spdlog::warn("checkpoint: {}", s.message());
+      },
+      c.runtime.background_nice);
+  ro.checkpoint_s = c.runtime.checkpoint_s;
+  ro.on_checkpoint = [&checkpoints](MapCheckpoint&& cp) { checkpoints.offer(std::move(cp)); };
   PlaybackSource playback(loaded, o.fps);
   // A dataset's frames are already limited above; a camera's here.
   FrameLimit limited_camera(in.camera ? static_cast<FrameSource&>(*in.camera) : playback,

@@ -465,6 +465,30 @@ TEST(RunCommand, AKilledRunKeepsEveryPoseItHadAndTheNextRunSaysSo) {
   EXPECT_EQ(poses(out + "/trajectory_live.txt"), 3);
 }
 
+TEST(RunCommand, ALiveRunCheckpointsItsMapIntoTheRunsFolder) {
+  // In real time the frontend thread copies the map into its slack every
+  // runtime.checkpoint_s and another thread meshes and writes it; the
+  // final outputs replace the checkpoints.
+  const std::string data = syntheticSequence("seq_ck", 45), dir = test::tempDir("ck");
+  ASSERT_FALSE(data.empty());
+  std::ofstream(dir + "/c.yaml") << "runtime: {checkpoint_s: 0.2}\n";
+  RunOptions o;
+  o.dataset = data;
+  o.config = dir + "/c.yaml";
+  o.out_dir = dir + "/out";
+  o.realtime = true;
+  o.fps = 15;  // 3 s of playback
+  o.no_mesh_eval = true;
+  ASSERT_EQ(runCommand(o), 0);
+  std::ifstream in(o.out_dir + "/summary.txt");
+  const std::string text((std::istreambuf_iterator<char>(in)), {});
+  const size_t at = text.find("checkpoints: ");
+  ASSERT_NE(at, std::string::npos) << text;
+  EXPECT_GE(std::stoi(text.substr(at + 13)), 3) << text.substr(at, 120);
+  EXPECT_TRUE(std::filesystem::file_size(o.out_dir + "/mesh.ply") > 1000);
+  EXPECT_FALSE(std::filesystem::exists(o.out_dir + ".partial"));
+}
+
 TEST(RunCommand, HangUpStopsTheRunLikeTermination) {
   // An ssh session that drops sends SIGHUP: the run stops and writes its
   // outputs instead of dying with nothing written.

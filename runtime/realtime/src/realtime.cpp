@@ -135,6 +135,10 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   stats.refine_outcomes_dropped = refine.counters.outcomes_full.load();
   stats.refine_slices = refine.counters.slices.load();
   stats.refine_voxels_written = front.voxels_written;
+  stats.checkpoints = front.checkpoint_copy_ms.size();
+  stats.checkpoints_forced = front.checkpoints_forced;
+  stats.checkpoint_copy_p50_ms = percentileOf(front.checkpoint_copy_ms, 0.5);
+  stats.checkpoint_copy_max_ms = percentileOf(front.checkpoint_copy_ms, 1.0);
   stats.results = std::move(front.results);
   const SchedulerCounters& c = stats.counters;
   const size_t background = refine.size() + burn.size();
@@ -162,6 +166,11 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
       stats.refine_slices, stats.refine_voxels_written, stats.burn_slices_run,
       static_cast<double>(stats.burn_slices_run) * burn.sliceMs(), stats.keyframes_to_feedback,
       stats.feedback_ring_full, stats.patches_applied, stats.corrections_applied);
+  if (stats.checkpoints > 0) {
+    stats.report += fmt::format(
+        "  checkpoints: {} map copies on the frontend thread ({} forced without slack), p50 {:.1f} ms, max {:.1f} ms\n",
+        stats.checkpoints, stats.checkpoints_forced, stats.checkpoint_copy_p50_ms, stats.checkpoint_copy_max_ms);
+  }
   const alg::FeedbackParams& fp = frontend.params().feedback;
   if (fp.enabled) {
     stats.feedback_windows_skipped = feedback.windows_skipped.load();

@@ -454,6 +454,7 @@ void FrontendStage::run() {
     const FrameResult& kept = results.emplace_back(std::move(r));
     frames_done_.fetch_add(1, std::memory_order_relaxed);
     reintegrateIntoSlack(kept);
+    checkpointIntoSlack();
   }
   done_.store(true);
 }
@@ -519,6 +520,28 @@ void FrontendStage::reintegrateIntoSlack(const FrameResult& r) {
   const double cost_ms = fc.reintegrations > 0 ? fc.reintegrate_ms / static_cast<double>(fc.reintegrations)
                                                : 2.0 * std::max(1.0, r.stage_ms[kIntegrate]);
   if (ctx_.sched.slackMs(ctx_.nowNs()) > 1.5 * cost_ms) frontend_.reintegratePending(1);
+}
+
+void FrontendStage::checkpointIntoSlack() {
+  if (!options_.on_checkpoint || options_.checkpoint_s <= 0) return;
+  const int64_t now = ctx_.nowNs();
+  if (last_checkpoint_ns_ < 0) last_checkpoint_ns_ = now;  // the first one an interval into the run
+  const double due_s = static_cast<double>(now - last_checkpoint_ns_) * 1e-9 / options_.checkpoint_s;
+  if (due_s < 1.0) return;
+  // The copy's cost as last measured (5 ms before the first).
+  const double cost_ms = checkpoint_copy_ms.empty() ? 5.0 : 1.2 * checkpoint_copy_ms.back();
+  const bool forced = due_s >= 3.0;
+  if (!forced && ctx_.sched.slackMs(now) < cost_ms) return;
+  MapCheckpoint c;
+  c.map = std::make_shared<const alg::TsdfMap>(frontend_.map());
+  c.details = frontend_.details();
+  c.trajectory = frontend_.trajectory();
+  const int64_t end = ctx_.nowNs();
+  checkpoint_copy_ms.push_back(static_cast<double>(end - now) * 1e-6);
+  checkpoints_forced += forced;
+  if (ctx_.trace) ctx_.trace->add({"checkpoint copy", "frontend", now, end - now, 2, -1, -1});
+  options_.on_checkpoint(std::move(c));
+  last_checkpoint_ns_ = end;
 }
 
 }  // namespace hxmap::rt::stages

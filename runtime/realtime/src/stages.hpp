@@ -281,6 +281,8 @@ class FrontendStage {
   // Read after join.
   std::vector<double> latency_ms, frontend_ms;
   std::vector<FrameResult> results;
+  std::vector<double> checkpoint_copy_ms;
+  uint64_t checkpoints_forced = 0;
   uint64_t patches_applied = 0, voxels_written = 0, corrections_applied = 0, loop_applied = 0;
   double loop_apply_ms = 0;
 
@@ -290,6 +292,7 @@ class FrontendStage {
   FrameResult process(const Arrival& a);
   void handOn();
   void reintegrateIntoSlack(const FrameResult& r);
+  void checkpointIntoSlack();
 
   RunContext& ctx_;
   Frontend& frontend_;
@@ -300,6 +303,7 @@ class FrontendStage {
   FrameInbox inbox_;
   std::atomic<bool> ready_{false}, done_{false};
   std::atomic<uint64_t> frames_done_{0};
+  int64_t last_checkpoint_ns_ = -1;
   std::thread thread_;
 };
 

@@ -86,10 +86,10 @@ struct RuntimeConfig {
   /// A run that lost more than this share of its frames exits with 1 (the
   /// outputs are still written). 1 = only a run that fused no frame at all.
   double max_lost_share = 1.0;
-  /// Offline runs write the mesh and trajectory into the run's folder this
-  /// often (seconds of wall time; the poses go to trajectory_live.txt
-  /// frame by frame in every run), so a killed run loses at most this
-  /// much. 0 = at the end only.
+  /// The mesh and trajectory go into the run's folder this often (seconds
+  /// of wall time; in real time from a map copy made in the frontend's
+  /// slack; the poses go to trajectory_live.txt frame by frame), so a
+  /// killed run loses at most this much. 0 = at the end only.
   double checkpoint_s = 10;
 };
 
