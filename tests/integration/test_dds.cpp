@@ -320,6 +320,17 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
 }
 
 // /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):
+// The transforms for `child` a /tf or /tf_static reader has now.
+std::vector<TransformMessage> takeTransforms(Reader& reader, const std::string& child) {
+  std::vector<TransformMessage> out;
+  (void)reader.take([&](const void* s, const dds_sample_info_t&) {
+    for (const auto& t : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
+      if (t.child_frame_id == child) out.push_back(t);
+    }
+  });
+  return out;
+}
+
 // frame_id -> child_frame_id per tracked frame, the camera's pose.
 TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
   const std::string pre = prefix("tf");
@@ -346,14 +357,12 @@ TEST(DdsLoopback, EveryTrackedFrameGoesOutOnTf) {
     (*pub)->onFrame(r, map, trajectory, RunCounters{});
   }
   std::map<int64_t, TransformMessage> received;
-  ASSERT_TRUE(waitFor([&] {
-    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
-      for (const auto& t : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
-        if (t.child_frame_id == p.child_frame_id) received[t.stamp_ns] = t;
-      }
-    });
-    return received.size() >= sent.size();
-  }, 20));
+  ASSERT_TRUE(waitFor(
+      [&] {
+        for (const auto& t : takeTransforms(*reader, p.child_frame_id)) received[t.stamp_ns] = t;
+        return received.size() >= sent.size();
+      },
+      20));
   ASSERT_EQ(received.size(), 9u);
   for (const auto& [stamp, t] : received) {
     ASSERT_TRUE(sent.count(stamp)) << stamp;
@@ -385,11 +394,7 @@ TEST(DdsLoopback, ABaseFrameGoesOnTfAndTheCameraMountOnTfStatic) {
   std::vector<TransformMessage> fixed;
   ASSERT_TRUE(waitFor(
       [&] {
-        (void)tf_static->take([&](const void* s, const dds_sample_info_t&) {
-          for (const auto& x : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
-            if (x.child_frame_id == p.child_frame_id) fixed.push_back(x);
-          }
-        });
+        fixed = takeTransforms(*tf_static, p.child_frame_id);
         return !fixed.empty();
       },
       20))
@@ -411,11 +416,7 @@ TEST(DdsLoopback, ABaseFrameGoesOnTfAndTheCameraMountOnTfStatic) {
   std::vector<TransformMessage> moving;
   ASSERT_TRUE(waitFor(
       [&] {
-        (void)tf->take([&](const void* s, const dds_sample_info_t&) {
-          for (const auto& x : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
-            if (x.child_frame_id == p.base_frame_id) moving.push_back(x);
-          }
-        });
+        moving = takeTransforms(*tf, p.base_frame_id);
         return !moving.empty();
       },
       20));

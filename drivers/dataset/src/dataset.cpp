@@ -267,6 +267,51 @@ void checkIntrinsics(const IntrinsicKeys& k, const std::function<std::string(con
         fmt::format("{} must be positive (raw depth units per meter), got {}", where(k.depth_scale), c.depth_scale));
   }
 }
+// Numbers of one calibration file's map, each problem with the file, the
+// line and the key (under `prefix`, e.g. "camera.").
+class KeyReader {
+ public:
+  KeyReader(YAML::Node map, std::string path, std::string prefix, std::vector<std::string>& problems)
+      : map_(std::move(map)), path_(std::move(path)), prefix_(std::move(prefix)), problems_(problems) {}
+  std::string where(const char* key) const {
+    const YAML::Node v = map_[key];
+    return v ? fmt::format("{}:{}: {}{}", path_, v.Mark().line + 1, prefix_, key)
+             : fmt::format("{}: {}{}", path_, prefix_, key);
+  }
+  double number(const char* key, bool required, double fallback) {
+    const YAML::Node v = map_[key];
+    if (!v) {
+      if (required) problems_.push_back(fmt::format("{}: missing key '{}{}'", path_, prefix_, key));
+      return fallback;
+    }
+    try {
+      return v.as<double>();
+    } catch (const YAML::Exception&) {
+      problems_.push_back(fmt::format("{} must be a number", where(key)));
+      return fallback;
+    }
+  }
+  std::vector<std::string>& problems() { return problems_; }
+
+ private:
+  const YAML::Node map_;
+  std::string path_, prefix_;
+  std::vector<std::string>& problems_;
+};
+
+// The intrinsics, image size and depth scale under `k`'s names, read and
+// checked alike for every calibration file.
+void readIntrinsics(KeyReader& r, const IntrinsicKeys& k, double default_scale, Calibration& c) {
+  alg::PinholeCamera& cam = c.camera;
+  cam.fx = r.number(k.fx, true, 1.0);
+  cam.fy = r.number(k.fy, true, 1.0);
+  cam.cx = r.number(k.cx, true, 0.0);
+  cam.cy = r.number(k.cy, true, 0.0);
+  const double width = r.number(k.width, true, 1.0), height = r.number(k.height, true, 1.0);
+  c.depth_scale = r.number(k.depth_scale, false, default_scale);
+  checkIntrinsics(
+      k, [&](const char* key) { return r.where(key); }, width, height, c, r.problems());
+}
 }  // namespace
 
 Expected<Calibration> parseCalibrationYaml(const std::string& text, const std::string& path) {
@@ -291,31 +336,11 @@ Expected<Calibration> parseCalibrationYaml(const std::string& text, const std::s
                                      where(kv.first, "'" + key + "'")));
     }
   }
-  auto number = [&](const char* key, bool required, double fallback) -> double {
-    const YAML::Node v = n[key];
-    if (!v) {
-      if (required) problems.push_back(fmt::format("{}: missing key '{}'", path, key));
-      return fallback;
-    }
-    try {
-      return v.as<double>();
-    } catch (const YAML::Exception&) {
-      problems.push_back(fmt::format("{} must be a number", where(v, key)));
-      return fallback;
-    }
-  };
+  KeyReader reader(n, path, "", problems);
   Calibration c;
   alg::PinholeCamera& cam = c.camera;
-  cam.fx = number("fx", true, 1.0);
-  cam.fy = number("fy", true, 1.0);
-  cam.cx = number("cx", true, 0.0);
-  cam.cy = number("cy", true, 0.0);
-  const double width = number("width", true, 1.0), height = number("height", true, 1.0);
-  c.depth_scale = number("depth_scale", false, 5000.0);
-  c.sensor_grazing_cos = number("sensor_grazing_cos", false, 0.0);
-  checkIntrinsics(
-      {"fx", "fy", "cx", "cy", "width", "height", "depth_scale"}, [&](const char* key) { return where(n[key], key); },
-      width, height, c, problems);
+  readIntrinsics(reader, {"fx", "fy", "cx", "cy", "width", "height", "depth_scale"}, 5000.0, c);
+  c.sensor_grazing_cos = reader.number("sensor_grazing_cos", false, 0.0);
   if (!(c.sensor_grazing_cos >= 0 && c.sensor_grazing_cos < 1)) {
     problems.push_back(fmt::format("{} must lie in [0, 1), got {}", where(n["sensor_grazing_cos"], "sensor_grazing_cos"),
                                    c.sensor_grazing_cos));
@@ -351,35 +376,9 @@ Expected<Calibration> parseReplicaCamParams(const std::string& text, const std::
   const YAML::Node c = n.IsMap() && n["camera"] ? n["camera"] : n;
   if (!c.IsMap()) return Error{path + ": expected an object with camera.fx fy cx cy w h [scale]"};
   std::vector<std::string> problems;
-  auto number = [&](const char* key, bool required, double fallback) -> double {
-    const YAML::Node v = c[key];
-    if (!v) {
-      if (required) problems.push_back(fmt::format("{}: missing key 'camera.{}'", path, key));
-      return fallback;
-    }
-    try {
-      return v.as<double>();
-    } catch (const YAML::Exception&) {
-      problems.push_back(fmt::format("{}:{}: camera.{} must be a number", path, v.Mark().line + 1, key));
-      return fallback;
-    }
-  };
+  KeyReader reader(c, path, "camera.", problems);
   Calibration out;
-  alg::PinholeCamera& cam = out.camera;
-  cam.fx = number("fx", true, 1.0);
-  cam.fy = number("fy", true, 1.0);
-  cam.cx = number("cx", true, 0.0);
-  cam.cy = number("cy", true, 0.0);
-  const double width = number("w", true, 1.0), height = number("h", true, 1.0);
-  out.depth_scale = number("scale", false, 6553.5);
-  checkIntrinsics(
-      {"fx", "fy", "cx", "cy", "w", "h", "scale"},
-      [&](const char* key) {
-        const YAML::Node v = c[key];
-        return v ? fmt::format("{}:{}: camera.{}", path, v.Mark().line + 1, key)
-                 : fmt::format("{}: camera.{}", path, key);
-      },
-      width, height, out, problems);
+  readIntrinsics(reader, {"fx", "fy", "cx", "cy", "w", "h", "scale"}, 6553.5, out);
   if (!problems.empty()) {
     return Error{
         fmt::format("{} problem(s) in the camera parameters:\n{}", problems.size(), fmt::join(problems, "\n"))};
