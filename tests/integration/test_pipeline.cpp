@@ -307,6 +307,14 @@ TEST(Program, VersionAndUsageErrorsHaveTheDocumentedExitCodes) {
   EXPECT_EQ(runProgram("run --no-such-option").first, 2);
   EXPECT_EQ(runProgram("").first, 2);  // no command
   EXPECT_EQ(runProgram("synth --frames zero --out x").first, 2);
+  // A negative frame count is a usage error naming the option, not "all frames".
+  const auto [neg_rc, neg] = runProgram("run --dataset . --max-frames -5 --out x");
+  EXPECT_EQ(neg_rc, 2);
+  EXPECT_NE(neg.find("--max-frames"), std::string::npos) << neg;
+  // An unwritable --trace is reported before the run, not after it.
+  const auto [trace_rc, trace] = runProgram("run --dataset . --trace /proc/no/such/trace.json --out x");
+  EXPECT_EQ(trace_rc, 2);
+  EXPECT_NE(trace.find("--trace /proc/no/such/trace.json: cannot write there"), std::string::npos) << trace;
 }
 
 TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
