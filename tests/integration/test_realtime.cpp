@@ -5,7 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <mutex>
 #include <thread>
+
+#include "hxmap/tsdf/mesh_extract.hpp"
 
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/realtime/realtime.hpp"
@@ -209,6 +212,58 @@ TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFronten
   EXPECT_LE(s.corrections_applied, s.feedback_corrections_sent) << s.report;
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
   EXPECT_NE(s.report.find("pose feedback: window 8"), std::string::npos) << s.report;
+}
+
+TEST_F(RealtimeTest, CheckpointCopiesAreTheMapAsItWasAndAreReadOnAnotherThread) {
+  // Every checkpoint is a copy made on the frontend thread: another thread
+  // meshes it while the frontend keeps fusing (ThreadSanitizer runs this
+  // test in CI), and a copy never changes after it was handed over.
+  options_.checkpoint_s = 0.05;
+  std::mutex mutex;
+  std::vector<MapCheckpoint> taken;
+  std::vector<size_t> blocks_when_taken, triangles;
+  std::atomic<bool> done{false};
+  std::thread reader([&] {
+    size_t read = 0;
+    while (!done.load() || read < taken.size()) {
+      MapCheckpoint c;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (read == taken.size()) {
+          c.map.reset();
+        } else {
+          c = taken[read++];
+        }
+      }
+      if (!c.map) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        continue;
+      }
+      const size_t n = alg::extractMesh(*c.map, alg::MeshParams{}).triangles.size();
+      std::lock_guard<std::mutex> lock(mutex);
+      triangles.push_back(n);
+    }
+  });
+  options_.on_checkpoint = [&](MapCheckpoint&& c) {
+    std::lock_guard<std::mutex> lock(mutex);
+    blocks_when_taken.push_back(c.map->blockCount());
+    taken.push_back(std::move(c));
+  };
+  const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
+  done.store(true);
+  reader.join();
+  ASSERT_GE(taken.size(), 2u) << s.report;
+  EXPECT_EQ(s.checkpoints, taken.size());
+  EXPECT_NE(s.report.find("checkpoints: "), std::string::npos) << s.report;
+  ASSERT_EQ(triangles.size(), taken.size());
+  for (size_t k = 0; k < taken.size(); ++k) {
+    EXPECT_EQ(taken[k].map->blockCount(), blocks_when_taken[k]) << "copy " << k << " changed after the hand-over";
+    EXPECT_GT(triangles[k], 0u) << "copy " << k;
+    EXPECT_LE(taken[k].trajectory.size(), fe_.trajectory().size());
+    if (k > 0) {
+      EXPECT_GE(taken[k].trajectory.size(), taken[k - 1].trajectory.size());
+    }
+  }
 }
 
 TEST_F(RealtimeTest, StopEndsTheRunWithConsistentOutputs) {
