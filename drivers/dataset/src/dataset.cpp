@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <csetjmp>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -15,7 +14,6 @@
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
-#include <jpeglib.h>
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 #include <opencv2/calib3d.hpp>
@@ -24,6 +22,7 @@
 
 #include "hxmap/dataset/parsers.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
+#include "hxmap/jpeg/jpeg.hpp"
 
 namespace fs = std::filesystem;
 
@@ -74,82 +73,6 @@ std::string describeType(const cv::Mat& m) {
   return fmt::format("{} {}-channel", bits, m.channels());
 }
 
-bool endsWithJpegEoi(const std::string& bytes) {
-  // EOI (FF D9) should be the last marker; tolerate a little trailing padding.
-  const size_t n = bytes.size();
-  for (size_t k = 0; k + 1 < std::min<size_t>(n, 64); ++k) {
-    const size_t i = n - 2 - k;
-    if (static_cast<uint8_t>(bytes[i]) == 0xFF && static_cast<uint8_t>(bytes[i + 1]) == 0xD9) return true;
-  }
-  return false;
-}
-
-// A JPEG decoded by libjpeg itself, so that its warnings count: corrupt
-// entropy-coded data (garbage inside the image, a cut-off scan) decodes to
-// a plausible-looking picture that OpenCV's decoder passes on silently.
-struct JpegErrors {
-  jpeg_error_mgr mgr{};
-  std::jmp_buf jump{};
-  int warnings = 0;
-  std::string first;
-};
-
-void jpegErrorExit(j_common_ptr cinfo) {
-  auto* e = reinterpret_cast<JpegErrors*>(cinfo->err);
-  char text[JMSG_LENGTH_MAX];
-  (*cinfo->err->format_message)(cinfo, text);
-  e->first = text;
-  std::longjmp(e->jump, 1);
-}
-
-void jpegMessage(j_common_ptr cinfo, int level) {
-  if (level >= 0) return;  // trace messages
-  auto* e = reinterpret_cast<JpegErrors*>(cinfo->err);
-  if (e->warnings++ == 0) {
-    char text[JMSG_LENGTH_MAX];
-    (*cinfo->err->format_message)(cinfo, text);
-    e->first = text;
-  }
-}
-
-// RGB (or an error naming what libjpeg found); one decode, as OpenCV's.
-Expected<cv::Mat> decodeJpegRgb(const std::string& b, const std::string& path, const std::string& ref) {
-  jpeg_decompress_struct cinfo{};
-  JpegErrors errors;
-  cinfo.err = jpeg_std_error(&errors.mgr);
-  errors.mgr.error_exit = jpegErrorExit;
-  errors.mgr.emit_message = jpegMessage;
-  // The image lives on the heap: only the pointee changes after setjmp, so
-  // the pointer is still valid when libjpeg's error handler jumps back.
-  const auto rgb = std::make_unique<cv::Mat>();
-  if (setjmp(errors.jump) != 0) {
-    jpeg_destroy_decompress(&cinfo);
-    return Error{fmt::format("{}: {} is corrupt: {}", ref, path, errors.first)};
-  }
-  jpeg_create_decompress(&cinfo);
-  jpeg_mem_src(&cinfo, reinterpret_cast<const unsigned char*>(b.data()), static_cast<unsigned long>(b.size()));
-  jpeg_read_header(&cinfo, TRUE);
-  if (cinfo.image_width > 8192 || cinfo.image_height > 8192) {
-    const std::string size = fmt::format("{}x{}", cinfo.image_width, cinfo.image_height);
-    jpeg_destroy_decompress(&cinfo);
-    return Error{fmt::format("{}: {} is {} pixels, larger than 8192 on a side", ref, path, size)};
-  }
-  cinfo.out_color_space = JCS_RGB;
-  jpeg_start_decompress(&cinfo);
-  rgb->create(static_cast<int>(cinfo.output_height), static_cast<int>(cinfo.output_width), CV_8UC3);
-  while (cinfo.output_scanline < cinfo.output_height) {
-    JSAMPROW row = rgb->ptr<uint8_t>(static_cast<int>(cinfo.output_scanline));
-    jpeg_read_scanlines(&cinfo, &row, 1);
-  }
-  jpeg_finish_decompress(&cinfo);
-  jpeg_destroy_decompress(&cinfo);
-  if (errors.warnings > 0) {
-    return Error{fmt::format("{}: {} has corrupt JPEG data ({}{})", ref, path, errors.first,
-                             errors.warnings > 1 ? fmt::format(", and {} more warnings", errors.warnings - 1) : "")};
-  }
-  return *rgb;
-}
-
 }  // namespace
 
 Expected<cv::Mat> readImage(const std::string& path, const std::string& ref, bool depth16) {
@@ -170,13 +93,16 @@ Expected<cv::Mat> decodeImage(const std::string& b, const std::string& path, con
   if (is_png && (b.size() < 20 || b.find("IEND", b.size() - 16) == std::string::npos)) {
     return Error{fmt::format("{}: {} is a truncated PNG (no IEND chunk)", ref, path)};
   }
-  if (is_jpeg && !endsWithJpegEoi(b))
+  const auto* bytes = reinterpret_cast<const uint8_t*>(b.data());
+  if (is_jpeg && !drv::isWholeJpeg(bytes, b.size(), 64))
     return Error{fmt::format("{}: {} is a truncated JPEG (no EOI marker)", ref, path)};
   if (is_jpeg) {
     if (depth16) {
       return Error{fmt::format("{}: depth image {} is a JPEG (8-bit), expected 16-bit single-channel", ref, path)};
     }
-    return decodeJpegRgb(b, path, ref);
+    auto rgb = drv::decodeJpegRgb(bytes, b.size());
+    if (!rgb) return Error{fmt::format("{}: {} {}", ref, path, rgb.message())};
+    return rgb;
   }
   cv::Mat img;
   try {

@@ -6,8 +6,9 @@
 #include <cstring>
 
 #include <fmt/format.h>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "hxmap/jpeg/jpeg.hpp"
 
 namespace hxmap::drv {
 
@@ -108,22 +109,13 @@ Expected<cv::Mat> decodeColor(PixelFormat format, const uint8_t* data, size_t by
       // A JPEG starts with SOI and (when complete) ends with EOI; some
       // cameras pad after EOI, so look for it near the end.
       if (bytes < 4 || data[0] != 0xFF || data[1] != 0xD8) return Error{fmt::format("MJPEG: {} bytes, no JPEG start marker (corrupt frame)", bytes)};
-      bool eoi = false;
-      for (size_t i = bytes - 1; i >= 1 && i + 4096 >= bytes; --i) {
-        if (data[i - 1] == 0xFF && data[i] == 0xD9) {
-          eoi = true;
-          break;
-        }
+      if (!isWholeJpeg(data, bytes, 4096))
+        return Error{fmt::format("MJPEG: {} bytes, no JPEG end marker (truncated frame)", bytes)};
+      auto rgb = decodeJpegRgb(data, bytes, std::max(width, height));
+      if (!rgb) return Error{fmt::format("MJPEG: a {}-byte frame {}", bytes, rgb.message())};
+      if (rgb->cols != width || rgb->rows != height) {
+        return Error{fmt::format("MJPEG: decoded {}x{}, the stream is {}x{}", rgb->cols, rgb->rows, width, height)};
       }
-      if (!eoi) return Error{fmt::format("MJPEG: {} bytes, no JPEG end marker (truncated frame)", bytes)};
-      const cv::Mat buf(1, static_cast<int>(bytes), CV_8UC1, const_cast<uint8_t*>(data));
-      cv::Mat bgr = cv::imdecode(buf, cv::IMREAD_COLOR);
-      if (bgr.empty()) return Error{fmt::format("MJPEG: {} bytes do not decode (corrupt frame)", bytes)};
-      if (bgr.cols != width || bgr.rows != height) {
-        return Error{fmt::format("MJPEG: decoded {}x{}, the stream is {}x{}", bgr.cols, bgr.rows, width, height)};
-      }
-      cv::Mat rgb;
-      cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
       return rgb;
     }
     case PixelFormat::kZ16:

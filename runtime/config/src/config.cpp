@@ -466,7 +466,11 @@ class Loader : public Visitor {
     }
     std::set<std::string> seen_sections;
     for (const auto& kv : root_) {
-      const std::string name = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) {
+        error(kv.first, fmt::format("a section's name must be a word, not {}", text(kv.first)));
+        continue;
+      }
+      const std::string name = kv.first.Scalar();
       if (!seen_sections.insert(name).second) {
         // YAML takes the first and drops the rest without a word.
         error(kv.first, fmt::format("section '{}' appears twice", name));
@@ -479,7 +483,11 @@ class Loader : public Visitor {
       if (!kv.second.IsMap()) continue;
       std::set<std::string> seen_keys;
       for (const auto& kk : kv.second) {
-        const std::string key = kk.first.as<std::string>();
+        if (!kk.first.IsScalar()) {
+          error(kk.first, fmt::format("a key in {} must be a word, not {}", name, text(kk.first)));
+          continue;
+        }
+        const std::string key = kk.first.Scalar();
         if (!seen_keys.insert(key).second) {
           error(kk.first, fmt::format("key '{}.{}' appears twice", name, key));
           continue;
@@ -549,11 +557,15 @@ Expected<HxmapConfig> loadConfigFromString(const std::string& yaml, const std::s
   }
   HxmapConfig config;
   Loader loader(root, source);
-  visit(config, loader);
-  loader.checkUnknown();
-  {
+  try {
+    visit(config, loader);
+    loader.checkUnknown();
     const YAML::Node& r = root;
     config.camera.intrinsics_given = r && r.IsMap() && r["camera"] && r["camera"].IsMap() && r["camera"]["fx"];
+  } catch (const YAML::Exception& e) {
+    // Every read above checks the node's kind first; this is a last guard
+    // so that a document of an unforeseen shape is an error, not an abort.
+    return Error{fmt::format("{}:{}: {}", source, e.mark.line + 1, e.msg)};
   }
   if (!loader.errors().empty()) {
     return Error{fmt::format("{} problem(s) in the configuration:\n{}", loader.errors().size(),

@@ -78,6 +78,19 @@ TEST(Config, AFolderAndDuplicateKeysAreErrorsNotSilentDefaults) {
   EXPECT_NE(dup.message().find("dup.yaml:6: section 'tsdf' appears twice"), std::string::npos) << dup.message();
 }
 
+TEST(Config, ListsOrMappingsAsNamesAreErrorsNamingTheLine) {
+  // YAML allows any node as a key; a configuration's names are words. (Found
+  // by fuzzing: reading such a key as text threw out of the loader.)
+  auto section = loadConfigFromString("camera:\n  fx: 500\n[tsdf, x]: 1\n", "k.yaml");
+  ASSERT_FALSE(section);
+  EXPECT_NE(section.message().find("k.yaml:3: a section's name must be a word, not a list"), std::string::npos)
+      << section.message();
+  auto key = loadConfigFromString("tsdf:\n  ? {voxel_size_m: 1}\n  : 0.02\n", "k.yaml");
+  ASSERT_FALSE(key);
+  EXPECT_NE(key.message().find("k.yaml:2: a key in tsdf must be a word, not a mapping"), std::string::npos)
+      << key.message();
+}
+
 TEST(Config, EveryPresetLoadsAndDefaultMatchesTheStructs) {
   const std::filesystem::path dir = std::filesystem::path(HXMAP_SOURCE_DIR) / "config";
   int presets = 0;
