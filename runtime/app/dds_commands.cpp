@@ -112,6 +112,16 @@ int echoCommand(const EchoOptions& o) {
         line = dds::describe(dds::fromWire(*static_cast<const nav_msgs_msg_dds__Path_*>(sample)));
         break;
       case dds::Topic::kMap: {
+        const auto markers = dds::fromWire(*static_cast<const visualization_msgs_msg_dds__MarkerArray_*>(sample));
+        if (!markers) {
+          spdlog::warn("{}: {}", name, markers.message());
+          ++bad;
+          return;
+        }
+        line = dds::describe(*markers);
+        break;
+      }
+      case dds::Topic::kMapChunks: {
         const auto chunk = dds::fromWire(*static_cast<const hxmap_msgs_msg_dds__MapChunk_*>(sample));
         if (!chunk) {
           spdlog::warn("{}: {}", name, chunk.message());

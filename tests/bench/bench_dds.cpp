@@ -22,6 +22,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -35,6 +36,7 @@
 #include "hxmap/dds/publisher.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/realtime/realtime.hpp"
+#include "hxmap/tsdf/mesh_extract.hpp"
 #include "test_data.hpp"
 
 using namespace hxmap;
@@ -75,14 +77,41 @@ int subscriber(const std::string& prefix, const std::string& mode, int count) {
                percentile(latency_us, 1.0));
     return 0;
   }
+  if (mode == "late") {
+    // Joins late: seconds until the markers it holds make `count` triangles.
+    const auto t0 = std::chrono::steady_clock::now();
+    auto reader = dds::Reader::create(*participant, dds::topicType(dds::Topic::kMap),
+                                      dds::topicName(dds::Topic::kMap, prefix), dds::topicQos(dds::Topic::kMap));
+    if (!reader) return 1;
+    std::map<int32_t, size_t> triangles;  // by marker id
+    size_t total = 0;
+    while (total != static_cast<size_t>(count) && std::chrono::steady_clock::now() < t0 + std::chrono::seconds(60)) {
+      (void)reader->wait(0.05);
+      (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+        const auto& a = *static_cast<const visualization_msgs_msg_dds__MarkerArray_*>(s);
+        for (uint32_t i = 0; i < a.markers._length; ++i) {
+          const auto& m = a.markers._buffer[i];
+          if (m.action == 2)
+            triangles.erase(m.id);
+          else
+            triangles[m.id] = m.points._length / 3;
+        }
+      });
+      total = 0;
+      for (const auto& [id, n] : triangles) total += n;
+    }
+    fmt::print("{} {:.3f}\n", total, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    return 0;
+  }
   // mode "all": keep every topic drained for `count` seconds, count bytes.
   std::vector<dds::Reader> readers;
-  for (dds::Topic t : {dds::Topic::kPose, dds::Topic::kTrajectory, dds::Topic::kMap, dds::Topic::kHealth}) {
+  for (dds::Topic t :
+       {dds::Topic::kPose, dds::Topic::kTrajectory, dds::Topic::kMapChunks, dds::Topic::kHealth, dds::Topic::kMap}) {
     auto r = dds::Reader::create(*participant, dds::topicType(t), dds::topicName(t, prefix), dds::topicQos(t));
     if (!r) return 1;
     readers.push_back(std::move(*r));
   }
-  size_t chunks = 0, chunk_bytes = 0, poses = 0;
+  size_t chunks = 0, chunk_bytes = 0, poses = 0, arrays = 0, marker_bytes = 0;
   const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(count);
   while (std::chrono::steady_clock::now() < end) {
     for (size_t i = 0; i < readers.size(); ++i) {
@@ -93,11 +122,18 @@ int subscriber(const std::string& prefix, const std::string& mode, int count) {
           ++chunks;
           chunk_bytes += w.vertices._length * 4 + w.colors._length + w.triangles._length * 4;
         }
+        if (i == 4) {
+          const auto& a = *static_cast<const visualization_msgs_msg_dds__MarkerArray_*>(s);
+          ++arrays;
+          for (uint32_t k = 0; k < a.markers._length; ++k) {
+            marker_bytes += a.markers._buffer[k].points._length * 24 + a.markers._buffer[k].colors._length * 16;
+          }
+        }
       });
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   }
-  fmt::print("{} {} {}\n", poses, chunks, chunk_bytes);
+  fmt::print("{} {} {} {} {}\n", poses, chunks, chunk_bytes, arrays, marker_bytes);
   return 0;
 }
 
@@ -231,7 +267,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     Child child = spawn(argv[0], prefix, "all", static_cast<int>(sequence_s) + 8);
-    waitFor([&] { return (*pub)->matchedReaders(dds::Topic::kMap) > 0; }, 30);
+    waitFor([&] { return (*pub)->matchedReaders(dds::Topic::kMapChunks) > 0; }, 30);
     RealtimeOptions with = ro;
     with.on_frame = [&](const FrameResult& r, const Frontend& f, const RunCounters& c) {
       (*pub)->onFrame(r, f.map(), f.trajectory(), c);
@@ -242,19 +278,46 @@ int main(int argc, char** argv) {
     const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const auto ps = (*pub)->stats();
     const std::string out = finish(child);
-    size_t poses = 0, chunks = 0, bytes = 0;
-    std::sscanf(out.c_str(), "%zu %zu %zu", &poses, &chunks, &bytes);
-    fmt::print("  with DDS:    frontend p50 {:.2f} ms, p99 {:.2f} ms; latency arrival->pose p50 {:.2f} ms\n"
-               "  map updates: {} ({} region meshes, {} chunks), {:.1f} KiB in all = {:.1f} KiB/s over {:.2f} s of "
-               "playback and final flush (map period {:.1f} s)\n"
-               "  subscriber process received {} poses, {} chunks, {:.1f} KiB of chunk payload\n"
-               "  publishing cost per frame: frontend thread p50 {:.3f} ms, max {:.2f} ms (region copies {:.2f} ms/frame "
-               "on average); hx-publish meshing+writing {:.2f} ms/frame on average\n",
-               frontendMs(s), s.frontend_p99_ms, s.latency_p50_ms, ps.map_updates, ps.regions, ps.chunks,
-               static_cast<double>(ps.chunk_bytes) / 1024, static_cast<double>(ps.chunk_bytes) / 1024 / wall_s, wall_s,
-               p.map_period_s, poses, chunks, static_cast<double>(bytes) / 1024, ps.frame_cost_p50_ms,
-               ps.frame_cost_max_ms, ps.snapshot_ms_total / static_cast<double>(frames.size()),
-               ps.mesh_ms_total / static_cast<double>(frames.size()));
+    size_t poses = 0, chunks = 0, bytes = 0, arrays = 0, marker_bytes = 0;
+    std::sscanf(out.c_str(), "%zu %zu %zu %zu %zu", &poses, &chunks, &bytes, &arrays, &marker_bytes);
+    // A late joiner of the MarkerArray map, while the publisher keeps
+    // working (a flush every 100 ms stands in for the frames of a live run).
+    const size_t map_triangles = alg::extractMesh(frontend.map(), p.mesh).triangles.size();
+    Child late = spawn(argv[0], prefix, "late", static_cast<int>(map_triangles));
+    std::atomic<bool> pumping{true};
+    std::thread pump([&] {
+      while (pumping.load()) {
+        (*pub)->flush(frontend.map(), frontend.trajectory(), RunCounters{});
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+    });
+    const std::string late_out = finish(late);
+    pumping.store(false);
+    pump.join();
+    size_t late_triangles = 0;
+    double late_s = 0;
+    std::sscanf(late_out.c_str(), "%zu %lf", &late_triangles, &late_s);
+    const auto ps2 = (*pub)->stats();
+    fmt::print(
+        "  with DDS:    frontend p50 {:.2f} ms, p99 {:.2f} ms; latency arrival->pose p50 {:.2f} ms\n"
+        "  map updates: {} ({} region meshes, {} chunks), {:.1f} KiB in all = {:.1f} KiB/s over {:.2f} s of "
+        "playback and final flush (map period {:.1f} s)\n"
+        "  subscriber process received {} poses, {} chunks, {:.1f} KiB of chunk payload\n"
+        "  map as MarkerArray: {} updates, {:.1f} KiB in all = {:.1f} KiB/s, {:.1f} KiB per update "
+        "(received {} arrays, {:.1f} KiB)\n"
+        "  late joiner: {} of {} triangles after {:.2f} s ({} whole-map resends, the last {:.1f} KiB)\n"
+        "  publishing cost per frame: frontend thread p50 {:.3f} ms, max {:.2f} ms (region copies {:.2f} ms/frame "
+        "on average); hx-publish meshing+writing {:.2f} ms/frame on average\n",
+        frontendMs(s), s.frontend_p99_ms, s.latency_p50_ms, ps.map_updates, ps.regions, ps.chunks,
+        static_cast<double>(ps.chunk_bytes) / 1024, static_cast<double>(ps.chunk_bytes) / 1024 / wall_s, wall_s,
+        p.map_period_s, poses, chunks, static_cast<double>(bytes) / 1024, ps.marker_arrays,
+        static_cast<double>(ps.marker_bytes) / 1024, static_cast<double>(ps.marker_bytes) / 1024 / wall_s,
+        static_cast<double>(ps.marker_bytes) / 1024 / std::max<double>(1.0, static_cast<double>(ps.marker_arrays)),
+        arrays, static_cast<double>(marker_bytes) / 1024, late_triangles, map_triangles, late_s, ps2.map_resends,
+        static_cast<double>(ps2.marker_bytes - ps.marker_bytes) / 1024 /
+            std::max<double>(1.0, static_cast<double>(ps2.map_resends - ps.map_resends)),
+        ps.frame_cost_p50_ms, ps.frame_cost_max_ms, ps.snapshot_ms_total / static_cast<double>(frames.size()),
+        ps.mesh_ms_total / static_cast<double>(frames.size()));
   }
   return 0;
 }

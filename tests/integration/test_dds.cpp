@@ -142,6 +142,49 @@ size_t drainMap(Reader& reader, ReceivedMap& received) {
   return n ? *n : 0;
 }
 
+// The map as RViz's MarkerArray display holds it: the newest marker per
+// (ns, id), deleted ones gone.
+struct ReceivedMarkers {
+  std::map<std::pair<std::string, int32_t>, MarkerMessage> markers;
+  size_t samples = 0, bad = 0, colorless = 0;
+  void add(const visualization_msgs_msg_dds__MarkerArray_& w) {
+    ++samples;
+    auto array = fromWire(w);
+    if (!array) {
+      ++bad;
+      return;
+    }
+    for (auto& m : *array) {
+      const auto key = std::make_pair(m.ns, m.id);
+      if (m.action == MarkerMessage::kDelete) {
+        markers.erase(key);
+        continue;
+      }
+      if (m.type != MarkerMessage::kTriangleList || m.frame_id != "map") ++bad;
+      if (m.colors.size() != m.points.size()) ++colorless;
+      markers[key] = std::move(m);
+    }
+  }
+  std::pair<size_t, double> totals() const {
+    size_t triangles = 0;
+    double area = 0;
+    for (const auto& [key, m] : markers) {
+      triangles += m.points.size() / 3;
+      for (size_t t = 0; t + 2 < m.points.size(); t += 3) {
+        area += 0.5 * (m.points[t + 1] - m.points[t]).cross(m.points[t + 2] - m.points[t]).norm();
+      }
+    }
+    return {triangles, area};
+  }
+};
+
+size_t drainMarkers(Reader& reader, ReceivedMarkers& received) {
+  auto n = reader.take([&](const void* s, const dds_sample_info_t&) {
+    received.add(*static_cast<const visualization_msgs_msg_dds__MarkerArray_*>(s));
+  });
+  return n ? *n : 0;
+}
+
 TEST(DdsMessages, WireRoundTripKeepsValues) {
   const PoseMessage pose{1'305'031'102'175'304'000, "map", poseAt(7)};
   const PoseMessage back = fromWire(PoseWire(pose).wire);
@@ -257,7 +300,8 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
   // Joins after everything was written: transient-local delivers it.
   auto participant = Participant::create(kDomain);
   ASSERT_TRUE(participant) << participant.message();
-  auto reader = Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  auto reader = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
+                               topicQos(Topic::kMapChunks));
   ASSERT_TRUE(reader) << reader.message();
   ReceivedMap received;
   ASSERT_TRUE(waitFor([&] {
@@ -296,7 +340,8 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
     drainMap(*reader, received);
     return received.totals().first == carved.triangles.size();
   }, 20)) << received.totals().first << " vs " << carved.triangles.size();
-  auto reader2 = Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  auto reader2 = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
+                                topicQos(Topic::kMapChunks));
   ASSERT_TRUE(reader2) << reader2.message();
   ReceivedMap late;
   ASSERT_TRUE(waitFor([&] {
@@ -317,6 +362,93 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
     return path.poses.size() == 2;
   }, 20));
   EXPECT_LT((path.poses[1].T_world_cam.matrix() - poseAt(1).matrix()).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+// RViz's MarkerArray display (and any ROS 2 node) reads the map from a
+// keyless topic, whose writer keeps one sample for late joiners: the
+// publisher sends the whole map again when a reader joins.
+TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFollowItsUpdates) {
+  const std::string pre = prefix("markers");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  alg::TsdfMap map(tsdfParams());
+  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.23f);
+  addSphere(map, {0.9f, 0.1f, 0.4f}, 0.12f);
+  const Trajectory trajectory{{1, poseAt(0)}, {2, poseAt(1)}};
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const alg::TriangleMesh full = alg::extractMesh(map, alg::MeshParams{});
+  const PublisherStats s1 = (*pub)->stats();
+  EXPECT_EQ(s1.marker_arrays, 1u);  // one MarkerArray per update
+  EXPECT_EQ(s1.map_resends, 0u);    // nobody was listening
+
+  // Joins after the map was written; as soon as the publisher has seen it
+  // (its next work item, here the next flush), the whole map is sent again.
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader =
+      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  ASSERT_TRUE(reader) << reader.message();
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
+  (*pub)->flush(map, trajectory, RunCounters{});
+  ReceivedMarkers received;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drainMarkers(*reader, received);
+        return received.totals().first == full.triangles.size();
+      },
+      20))
+      << received.totals().first << " of " << full.triangles.size() << " triangles; resends "
+      << (*pub)->stats().map_resends << ", arrays " << (*pub)->stats().marker_arrays << ", received "
+      << received.samples;
+  EXPECT_EQ(received.bad, 0u);
+  EXPECT_EQ(received.colorless, 0u);
+  EXPECT_NEAR(received.totals().second, full.surfaceArea(), 1e-5 * full.surfaceArea());
+
+  // The small sphere is carved away: the reader there sees its parts deleted.
+  alg::TsdfPatch carve;
+  for (int z = -12; z <= 12; ++z) {
+    for (int y = -12; y <= 12; ++y) {
+      for (int x = -12; x <= 12; ++x) {
+        alg::TsdfPatch::Entry e;
+        e.voxel = map.voxelOf(Eigen::Vector3f(0.9f, 0.1f, 0.4f)) + Eigen::Vector3i(x, y, z);
+        int index = 0;
+        if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
+        e.sdf_m = map.truncation();
+        e.weight = 1000.0f;
+        carve.entries.push_back(e);
+      }
+    }
+  }
+  alg::applyPatch(map, carve);
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const alg::TriangleMesh carved = alg::extractMesh(map, alg::MeshParams{});
+  ASSERT_LT(carved.triangles.size(), full.triangles.size());
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drainMarkers(*reader, received);
+        return received.totals().first == carved.triangles.size();
+      },
+      20))
+      << received.totals().first << " vs " << carved.triangles.size();
+
+  // A second late joiner gets the carved map, nothing of what was deleted.
+  auto reader2 =
+      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  ASSERT_TRUE(reader2) << reader2.message();
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 2; }, 20));
+  (*pub)->flush(map, trajectory, RunCounters{});
+  ReceivedMarkers late;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drainMarkers(*reader2, late);
+        return late.totals().first == carved.triangles.size();
+      },
+      20))
+      << late.totals().first << " vs " << carved.triangles.size();
+  EXPECT_NEAR(late.totals().second, carved.surfaceArea(), 1e-5 * carved.surfaceArea());
+  EXPECT_EQ(late.markers.size(), received.markers.size());
+  EXPECT_EQ((*pub)->stats().map_resends, 2u);
+  EXPECT_EQ((*pub)->stats().write_errors, 0u);
 }
 
 // /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):
@@ -647,8 +779,8 @@ TEST(DdsLoopback, EchoInASeparateProcessPrintsThePublishedValues) {
   // The map, written before the echo starts.
   (*pub)->flush(map, trajectory, RunCounters{});
   const PublisherStats s = (*pub)->stats();
-  const std::string map_cmd = fmt::format("'{}' -q echo map --count {} --timeout 30 --domain {} --prefix {}", HXMAP_BIN,
-                                          s.chunks, kDomain, pre);
+  const std::string map_cmd = fmt::format("'{}' -q echo map_chunks --count {} --timeout 30 --domain {} --prefix {}",
+                                          HXMAP_BIN, s.chunks, kDomain, pre);
   FILE* map_pipe = popen(map_cmd.c_str(), "r");
   ASSERT_NE(map_pipe, nullptr);
   std::string map_out;

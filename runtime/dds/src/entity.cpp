@@ -101,6 +101,12 @@ uint32_t Writer::matchedReaders() const {
   return s.current_count;
 }
 
+uint32_t Writer::matchedReadersTotal() const {
+  dds_publication_matched_status_t s{};
+  if (dds_get_publication_matched_status(writer_.get(), &s) != DDS_RETCODE_OK) return 0;
+  return s.total_count;
+}
+
 Expected<Reader> Reader::create(const Participant& participant, const dds_topic_descriptor_t* type,
                                 const std::string& topic, const TopicQos& qos) {
   Reader r;

@@ -68,6 +68,8 @@ const char* topicShortName(Topic topic) {
     case Topic::kPose: return "pose";
     case Topic::kTrajectory: return "trajectory";
     case Topic::kMap: return "map";
+    case Topic::kMapChunks:
+      return "map_chunks";
     case Topic::kHealth: return "health";
     case Topic::kTf: return "tf";
     case Topic::kTfStatic:
@@ -80,7 +82,8 @@ Expected<Topic> topicFromString(const std::string& name) {
   for (Topic t : kAllTopics) {
     if (name == topicShortName(t)) return t;
   }
-  return Error{fmt::format("unknown topic '{}' (known: pose, trajectory, map, health, tf, tf_static)", name)};
+  return Error{
+      fmt::format("unknown topic '{}' (known: pose, trajectory, map, map_chunks, health, tf, tf_static)", name)};
 }
 
 TopicQos topicQos(Topic topic) {
@@ -88,6 +91,8 @@ TopicQos topicQos(Topic topic) {
     case Topic::kPose: return {true, false, 10};  // reliable: ROS 2's default readers ask for it (REP 2003)
     case Topic::kTrajectory: return {true, true, 1};
     case Topic::kMap: return {true, true, 1};
+    case Topic::kMapChunks:
+      return {true, true, 1};
     case Topic::kHealth: return {true, true, 1};
     case Topic::kTf: return {true, false, 100};  // as tf2_ros's TransformBroadcaster
     case Topic::kTfStatic:
@@ -100,7 +105,10 @@ const dds_topic_descriptor_t* topicType(Topic topic) {
   switch (topic) {
     case Topic::kPose: return &geometry_msgs_msg_dds__PoseStamped__desc;
     case Topic::kTrajectory: return &nav_msgs_msg_dds__Path__desc;
-    case Topic::kMap: return &hxmap_msgs_msg_dds__MapChunk__desc;
+    case Topic::kMap:
+      return &visualization_msgs_msg_dds__MarkerArray__desc;
+    case Topic::kMapChunks:
+      return &hxmap_msgs_msg_dds__MapChunk__desc;
     case Topic::kHealth: return &hxmap_msgs_msg_dds__Health__desc;
     case Topic::kTf:
     case Topic::kTfStatic:
@@ -110,6 +118,34 @@ const dds_topic_descriptor_t* topicType(Topic topic) {
 }
 
 PoseWire::PoseWire(const PoseMessage& m) { fillPose(wire, m.stamp_ns, m.frame_id, m.T_world_cam); }
+
+MarkerArrayWire::MarkerArrayWire(const std::vector<MarkerMessage>& in)
+    : markers(in.size()), points(in.size()), colors(in.size()) {
+  for (size_t i = 0; i < in.size(); ++i) {
+    const MarkerMessage& m = in[i];
+    visualization_msgs_msg_dds__Marker_& w = markers[i];
+    w.header.stamp = toTime(m.stamp_ns);
+    w.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+    w.ns = const_cast<char*>(m.ns.c_str());
+    w.id = m.id;
+    w.type = m.type;
+    w.action = m.action;
+    w.pose.orientation.w = 1.0;
+    w.scale = {1.0, 1.0, 1.0};
+    w.color = {1.0f, 1.0f, 1.0f, 1.0f};
+    points[i].reserve(m.points.size());
+    for (const auto& p : m.points) points[i].push_back({p.x(), p.y(), p.z()});
+    colors[i].reserve(m.colors.size());
+    for (const auto& c : m.colors) colors[i].push_back({c[0], c[1], c[2], c[3]});
+    w.points = view<dds_sequence_geometry_msgs_msg_dds__Point_>(points[i]);
+    w.colors = view<dds_sequence_std_msgs_msg_dds__ColorRGBA_>(colors[i]);
+    // Strings must not be null on the wire; the texture and mesh file stay empty.
+    static char empty[] = "";
+    w.texture_resource = w.text = w.mesh_resource = empty;
+    w.texture.header.frame_id = w.texture.format = w.mesh_file.filename = empty;
+  }
+  wire.markers = view<dds_sequence_visualization_msgs_msg_dds__Marker_>(markers);
+}
 
 TfWire::TfWire(const TransformMessage& m) {
   transform.header.stamp = toTime(m.stamp_ns);
@@ -202,6 +238,40 @@ Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w) {
   return m;
 }
 
+Expected<std::vector<MarkerMessage>> fromWire(const visualization_msgs_msg_dds__MarkerArray_& w) {
+  std::vector<MarkerMessage> out;
+  out.reserve(w.markers._length);
+  for (uint32_t i = 0; i < w.markers._length; ++i) {
+    const visualization_msgs_msg_dds__Marker_& k = w.markers._buffer[i];
+    MarkerMessage m;
+    m.stamp_ns = fromTime(k.header.stamp);
+    m.frame_id = str(k.header.frame_id);
+    m.ns = str(k.ns);
+    m.id = k.id;
+    m.type = k.type;
+    m.action = k.action;
+    const std::string where = fmt::format("marker {} {}", m.ns, m.id);
+    if (k.colors._length != 0 && k.colors._length != k.points._length) {
+      return Error{fmt::format("{}: {} colors for {} points", where, k.colors._length, k.points._length)};
+    }
+    if (k.type == MarkerMessage::kTriangleList && k.points._length % 3 != 0) {
+      return Error{fmt::format("{}: a triangle list of {} points, not 3 per triangle", where, k.points._length)};
+    }
+    m.points.reserve(k.points._length);
+    for (uint32_t j = 0; j < k.points._length; ++j) {
+      const auto& p = k.points._buffer[j];
+      m.points.emplace_back(p.x, p.y, p.z);
+    }
+    m.colors.reserve(k.colors._length);
+    for (uint32_t j = 0; j < k.colors._length; ++j) {
+      const auto& c = k.colors._buffer[j];
+      m.colors.emplace_back(c.r, c.g, c.b, c.a);
+    }
+    out.push_back(std::move(m));
+  }
+  return out;
+}
+
 HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w) {
   HealthMessage m;
   m.stamp_ns = fromTime(w.header.stamp);
@@ -267,6 +337,18 @@ std::string describe(const MapChunkMessage& m) {
                      stampText(m.stamp_ns), m.frame_id, m.region.x(), m.region.y(), m.region.z(), m.part, m.parts,
                      m.revision, m.vertices.size() / 3, m.triangles.size() / 3, m.colors.empty() ? "no" : "yes",
                      m.payloadBytes());
+}
+
+std::string describe(const std::vector<MarkerMessage>& markers) {
+  size_t added = 0, deleted = 0, triangles = 0, bytes = 0;
+  for (const auto& m : markers) {
+    (m.action == MarkerMessage::kDelete ? deleted : added) += 1;
+    if (m.type == MarkerMessage::kTriangleList) triangles += m.points.size() / 3;
+    bytes += m.payloadBytes();
+  }
+  return fmt::format("markers {} {} added {} deleted {} triangles {} bytes {}",
+                     markers.empty() ? "0.000000000" : stampText(markers.front().stamp_ns),
+                     markers.empty() ? "" : markers.front().frame_id, added, deleted, triangles, bytes);
 }
 
 std::string describe(const HealthMessage& m) {

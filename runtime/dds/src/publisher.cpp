@@ -24,6 +24,32 @@ double median(std::vector<double> v) {
 
 uint64_t packRegion(const alg::RegionKey& r) { return alg::packBlockKey(r); }
 
+constexpr const char* kMarkerNamespace = "hxmap_map";
+
+// A region part as RViz draws it: every triangle's three corners in turn,
+// with their colors.
+MarkerMessage triangleListMarker(const alg::TriangleMesh& mesh, int32_t id, int64_t stamp_ns,
+                                 const std::string& frame_id) {
+  MarkerMessage m;
+  m.stamp_ns = stamp_ns;
+  m.frame_id = frame_id;
+  m.ns = kMarkerNamespace;
+  m.id = id;
+  m.points.reserve(mesh.triangles.size() * 3);
+  const bool colored = mesh.colors.size() == mesh.vertices.size();
+  if (colored) m.colors.reserve(mesh.triangles.size() * 3);
+  for (const auto& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      m.points.push_back(mesh.vertices[static_cast<size_t>(t[k])].cast<double>());
+      if (colored) {
+        const auto& c = mesh.colors[static_cast<size_t>(t[k])];
+        m.colors.emplace_back(c[0] / 255.0f, c[1] / 255.0f, c[2] / 255.0f, 1.0f);
+      }
+    }
+  }
+  return m;
+}
+
 }  // namespace
 
 struct Publisher::Work {
@@ -211,6 +237,7 @@ void Publisher::run() {
       any = true;
       process(*work);
     }
+    if (any) resendMapToNewReaders();
     if (!any) {
       if (stop_.load(std::memory_order_acquire)) return;
       work_seq_.wait(seq, std::memory_order_acquire);
@@ -222,7 +249,9 @@ void Publisher::process(Work& work) {
   switch (work.kind) {
     case Work::kMap: {
       const int64_t t0 = nowNs();
-      for (const alg::RegionKey& r : work.regions) writeRegion(*work.snapshot, r, work.stamp_ns);
+      std::vector<MarkerMessage> markers;
+      for (const alg::RegionKey& r : work.regions) writeRegion(*work.snapshot, r, work.stamp_ns, markers);
+      if (!markers.empty()) writeMarkers(markers);
       map_updates_.fetch_add(1, std::memory_order_relaxed);
       mesh_ms_total_.store(mesh_ms_total_.load(std::memory_order_relaxed) + static_cast<double>(nowNs() - t0) * 1e-6,
                            std::memory_order_relaxed);
@@ -249,7 +278,8 @@ void Publisher::process(Work& work) {
   }
 }
 
-void Publisher::writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns) {
+void Publisher::writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns,
+                            std::vector<MarkerMessage>& markers) {
   const alg::TriangleMesh mesh = alg::regionMesh(snapshot, region, params_.region_blocks, params_.mesh);
   const std::vector<alg::TriangleMesh> parts =
       alg::splitMesh(mesh, static_cast<size_t>(std::max(params_.max_triangles_per_chunk, 1)));
@@ -264,7 +294,7 @@ void Publisher::writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& 
   m.parts = static_cast<uint16_t>(n);
   m.revision = state.revision;
   m.region_size_m = snapshot.blockSize() * static_cast<float>(params_.region_blocks);
-  Writer& writer = writers_[static_cast<size_t>(Topic::kMap)];
+  Writer& writer = writers_[static_cast<size_t>(Topic::kMapChunks)];
   // Parts the region no longer has are sent empty, so a reader drops them.
   const size_t count = std::max<size_t>(n, state.parts);
   for (size_t i = 0; i < count; ++i) {
@@ -295,8 +325,54 @@ void Publisher::writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& 
     chunks_.fetch_add(1, std::memory_order_relaxed);
     chunk_bytes_.fetch_add(m.payloadBytes(), std::memory_order_relaxed);
   }
+  // The same parts as markers, with a DELETE for each part the region no
+  // longer has.
+  while (state.marker_ids.size() < count) state.marker_ids.push_back(next_marker_id_++);
+  for (size_t i = 0; i < count; ++i) {
+    if (i < n) {
+      markers.push_back(triangleListMarker(parts[i], state.marker_ids[i], stamp_ns, params_.frame_id));
+    } else {
+      MarkerMessage gone;
+      gone.stamp_ns = stamp_ns;
+      gone.frame_id = params_.frame_id;
+      gone.ns = kMarkerNamespace;
+      gone.id = state.marker_ids[i];
+      gone.action = MarkerMessage::kDelete;
+      markers.push_back(std::move(gone));
+    }
+  }
+  state.meshes.assign(parts.begin(), parts.begin() + static_cast<std::ptrdiff_t>(n));
   state.parts = static_cast<uint16_t>(n);
+  last_map_stamp_ns_ = stamp_ns;
   regions_written_.fetch_add(1, std::memory_order_relaxed);
+}
+
+void Publisher::writeMarkers(const std::vector<MarkerMessage>& markers) {
+  const MarkerArrayWire wire(markers);
+  const Status s = writers_[static_cast<size_t>(Topic::kMap)].write(&wire.wire);
+  if (!s) {
+    recordError(s);
+    return;
+  }
+  size_t bytes = 0;
+  for (const auto& m : markers) bytes += m.payloadBytes();
+  marker_arrays_.fetch_add(1, std::memory_order_relaxed);
+  marker_bytes_.fetch_add(bytes, std::memory_order_relaxed);
+}
+
+void Publisher::resendMapToNewReaders() {
+  const uint32_t total = writers_[static_cast<size_t>(Topic::kMap)].matchedReadersTotal();
+  if (total <= map_readers_seen_) return;
+  map_readers_seen_ = total;
+  std::vector<MarkerMessage> markers;
+  for (const auto& [key, state] : regions_) {
+    for (size_t i = 0; i < state.meshes.size(); ++i) {
+      markers.push_back(triangleListMarker(state.meshes[i], state.marker_ids[i], last_map_stamp_ns_, params_.frame_id));
+    }
+  }
+  if (markers.empty()) return;
+  writeMarkers(markers);
+  map_resends_.fetch_add(1, std::memory_order_relaxed);
 }
 
 void Publisher::recordError(const Status& s) {
@@ -316,6 +392,9 @@ PublisherStats Publisher::stats() const {
   s.regions = regions_written_.load();
   s.chunks = chunks_.load();
   s.chunk_bytes = chunk_bytes_.load();
+  s.marker_arrays = marker_arrays_.load();
+  s.marker_bytes = marker_bytes_.load();
+  s.map_resends = map_resends_.load();
   s.items_dropped = items_dropped_;
   s.write_errors = write_errors_.load();
   {

@@ -73,6 +73,8 @@ class Writer {
   Status write(const void* sample);
   /// Readers currently matched (0 on error).
   uint32_t matchedReaders() const;
+  /// Readers ever matched (a reader that came, went and came back counts twice).
+  uint32_t matchedReadersTotal() const;
   const std::string& topic() const { return topic_; }
   dds_entity_t get() const { return writer_.get(); }
 

@@ -3,7 +3,9 @@
 //
 //   rt/<prefix>/pose        geometry_msgs/PoseStamped  reliable, volatile, keep last 10
 //   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
-//   rt/<prefix>/map         hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
+//   rt/<prefix>/map         visualization_msgs/MarkerArray  reliable, transient local, keep last 1;
+//                           the whole map again whenever a reader joins
+//   rt/<prefix>/map_chunks  hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
 //   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1
 //   rt/tf                   tf2_msgs/TFMessage         reliable, volatile, keep last 100 (as tf2's broadcaster)
 //
@@ -25,13 +27,13 @@
 
 namespace hxmap::rt::dds {
 
-enum class Topic { kPose, kTrajectory, kMap, kHealth, kTf, kTfStatic };
-inline constexpr Topic kAllTopics[] = {Topic::kPose,   Topic::kTrajectory, Topic::kMap,
+enum class Topic { kPose, kTrajectory, kMap, kMapChunks, kHealth, kTf, kTfStatic };
+inline constexpr Topic kAllTopics[] = {Topic::kPose,   Topic::kTrajectory, Topic::kMap,     Topic::kMapChunks,
                                        Topic::kHealth, Topic::kTf,         Topic::kTfStatic};
 
 /// "rt/<prefix>/pose" and so on; TF is ROS 2's one "rt/tf" whatever the prefix.
 std::string topicName(Topic topic, const std::string& prefix);
-/// Topic by its short name ("pose", "trajectory", "map", "health", "tf").
+/// Topic by its short name ("pose", "trajectory", "map", "map_chunks", "health", "tf", "tf_static").
 Expected<Topic> topicFromString(const std::string& name);
 const char* topicShortName(Topic topic);
 TopicQos topicQos(Topic topic);
@@ -72,6 +74,24 @@ struct MapChunkMessage {
   }
 };
 
+/// One visualization_msgs/Marker of the map: a TRIANGLE_LIST (3 points
+/// per triangle, a color per point) added or replaced under (ns, id), or
+/// the DELETE of one.
+struct MarkerMessage {
+  static constexpr int32_t kTriangleList = 11;
+  static constexpr int32_t kAdd = 0, kDelete = 2;
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  std::string ns;
+  int32_t id = 0;
+  int32_t type = kTriangleList;
+  int32_t action = kAdd;
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector4f> colors;  ///< r, g, b, a in [0, 1] per point, or empty
+  /// Bytes of the points and colors as they go on the wire.
+  size_t payloadBytes() const { return points.size() * 3 * sizeof(double) + colors.size() * 4 * sizeof(float); }
+};
+
 struct HealthMessage {
   int64_t stamp_ns = 0;
   std::string frame_id;
@@ -95,6 +115,13 @@ struct MapChunkWire {
   explicit MapChunkWire(const MapChunkMessage& m);
   hxmap_msgs_msg_dds__MapChunk_ wire{};
 };
+struct MarkerArrayWire {
+  explicit MarkerArrayWire(const std::vector<MarkerMessage>& markers);
+  std::vector<visualization_msgs_msg_dds__Marker_> markers;
+  std::vector<std::vector<geometry_msgs_msg_dds__Point_>> points;
+  std::vector<std::vector<std_msgs_msg_dds__ColorRGBA_>> colors;
+  visualization_msgs_msg_dds__MarkerArray_ wire{};
+};
 struct TfWire {
   explicit TfWire(const TransformMessage& m);
   geometry_msgs_msg_dds__TransformStamped_ transform{};
@@ -110,6 +137,9 @@ struct HealthWire {
 PoseMessage fromWire(const geometry_msgs_msg_dds__PoseStamped_& w);
 PathMessage fromWire(const nav_msgs_msg_dds__Path_& w);
 Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w);
+/// A marker whose colors are neither none nor one per point, or a triangle
+/// list whose points are not a multiple of 3, is an Error.
+Expected<std::vector<MarkerMessage>> fromWire(const visualization_msgs_msg_dds__MarkerArray_& w);
 HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w);
 std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w);
 
@@ -117,6 +147,7 @@ std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w);
 std::string describe(const PoseMessage& m);
 std::string describe(const PathMessage& m);
 std::string describe(const MapChunkMessage& m);
+std::string describe(const std::vector<MarkerMessage>& markers);
 std::string describe(const HealthMessage& m);
 std::string describe(const TransformMessage& m);
 

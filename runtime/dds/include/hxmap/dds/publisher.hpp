@@ -10,7 +10,18 @@
 // SPSC ring to the publisher thread (hx-publish), on its period: for the map
 // the frontend copies the blocks of the regions changed since the last
 // update (bounded by what changed, not by the map), and the publisher thread
-// meshes them and writes one chunk per region part. A full ring drops the
+// meshes them and writes them twice: one MarkerArray per update, a marker
+// per region part (RViz and any ROS 2 node read it), and one compact
+// MapChunk per region part (keyed, for hxmap's own readers).
+//
+// The MarkerArray topic is keyless: a reader that keeps one sample (or
+// lags) holds only the newest, so each sample is a whole update, and a
+// reader that joins late would get only the last update. The publisher
+// thread therefore watches the map writer's matched readers and, when one
+// joined, sends the whole map again as one sample from the region meshes
+// it keeps (about the size of the mesh): a late joiner has the whole map
+// within one health period after its discovery, and the readers already
+// there receive the same markers again, which replace themselves. A full ring drops the
 // item, counted; the regions stay marked as changed and go out next time, so
 // no map data is lost, only delayed. Reliable writers may block the
 // publisher thread (a slow reliable reader), never the frontend.
@@ -72,6 +83,9 @@ struct PublisherStats {
   uint64_t regions = 0;         ///< region meshes written
   uint64_t chunks = 0;          ///< chunk samples written (empty ones included)
   uint64_t chunk_bytes = 0;     ///< their payload (vertices, colors, indices)
+  uint64_t marker_arrays = 0;   ///< MarkerArray samples written on the map topic (one per update)
+  uint64_t marker_bytes = 0;    ///< their payload (points, colors)
+  uint64_t map_resends = 0;     ///< whole-map MarkerArrays sent because a reader joined
   uint64_t items_dropped = 0;   ///< work items the full ring refused (data delayed, not lost)
   uint64_t write_errors = 0;
   std::string last_error;
@@ -82,7 +96,7 @@ struct PublisherStats {
 
 class Publisher {
  public:
-  /// Joins the domain, creates the four writers and starts hx-publish.
+  /// Joins the domain, creates a writer per topic and starts hx-publish.
   static Expected<std::unique_ptr<Publisher>> start(const PublisherParams& params);
   ~Publisher();
   Publisher(const Publisher&) = delete;
@@ -110,7 +124,11 @@ class Publisher {
   void queueHealth(const RunCounters& counters, int64_t stamp_ns, bool must);
   void run();
   void process(Work& work);
-  void writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns);
+  /// Writes the region's chunks and appends its markers to `markers`.
+  void writeRegion(const alg::TsdfMap& snapshot, const alg::RegionKey& region, int64_t stamp_ns,
+                   std::vector<MarkerMessage>& markers);
+  void writeMarkers(const std::vector<MarkerMessage>& markers);
+  void resendMapToNewReaders();
   void recordError(const Status& s);
 
   PublisherParams params_;
@@ -136,9 +154,15 @@ class Publisher {
   struct RegionState {
     uint32_t revision = 0;
     uint16_t parts = 0;
+    std::vector<alg::TriangleMesh> meshes;  ///< the parts as last sent, for readers that join later
+    std::vector<int32_t> marker_ids;        ///< marker id of each part (stable; ids are never reused)
   };
   std::unordered_map<uint64_t, RegionState> regions_;
+  int32_t next_marker_id_ = 0;
+  int64_t last_map_stamp_ns_ = 0;
+  uint32_t map_readers_seen_ = 0;  ///< the map writer's matched readers, counted over the run
   std::atomic<uint64_t> paths_{0}, health_{0}, map_updates_{0}, regions_written_{0}, chunks_{0}, chunk_bytes_{0};
+  std::atomic<uint64_t> marker_arrays_{0}, marker_bytes_{0}, map_resends_{0};
   std::atomic<uint64_t> write_errors_{0};
   std::atomic<double> mesh_ms_total_{0};
   mutable std::mutex error_mutex_;
