@@ -40,6 +40,7 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
   p.frame_id = c.dds.frame_id;
   p.child_frame_id = c.dds.child_frame_id;
   p.base_frame_id = c.dds.base_frame_id;
+  p.odom_frame_id = c.dds.odom_frame_id;
   p.T_base_cam = alg::mountedOptical(
       {c.dds.base_to_camera_x_m, c.dds.base_to_camera_y_m, c.dds.base_to_camera_z_m},
       {c.dds.base_to_camera_roll_deg, c.dds.base_to_camera_pitch_deg, c.dds.base_to_camera_yaw_deg});

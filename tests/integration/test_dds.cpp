@@ -557,6 +557,62 @@ TEST(DdsLoopback, ABaseFrameGoesOnTfAndTheCameraMountOnTfStatic) {
   EXPECT_LT((T_map_cam.matrix() - r.T_world_cam.matrix()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// REP 105 on a robot with loop closure: map -> odom carries what closures
+// corrected, odom -> base_link follows the odometry and never jumps.
+TEST(DdsLoopback, WithAnOdomFrameAClosureMovesMapToOdomAndOdomToBaseStaysContinuous) {
+  const std::string pre = prefix("tf_odom");
+  PublisherParams p = params(pre);
+  p.base_frame_id = pre + "_base_link";
+  p.odom_frame_id = pre + "_odom";
+  p.T_base_cam = alg::mountedOptical({0.1, 0.0, 0.2}, {0.0, 0.0, 0.0});
+  auto pub = Publisher::start(p);
+  ASSERT_TRUE(pub) << pub.message();
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto tf = Reader::create(*participant, topicType(Topic::kTf), "rt/tf", topicQos(Topic::kTf));
+  ASSERT_TRUE(tf) << tf.message();
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kTf) > 0 && tf->matchedWriters() > 0; }, 20));
+  // Two frames 1 cm apart in odometry; a closure between them moved the
+  // world by 5 cm and 2 degrees.
+  const Eigen::Isometry3d correction =
+      alg::expSE3((Eigen::Matrix<double, 6, 1>() << 0.05, -0.01, 0.0, 0.0, 0.0, 0.035).finished());
+  FrameResult a = frame(1), b = frame(2);
+  b.T_world_cam = correction * a.T_world_cam * Eigen::Translation3d(0.01, 0, 0);
+  b.T_world_odom = correction;
+  alg::TsdfMap map(tsdfParams());
+  Trajectory trajectory;
+  for (const FrameResult* r : {&a, &b}) {
+    trajectory.push_back({r->stamp_ns, r->T_world_cam});
+    (*pub)->onFrame(*r, map, trajectory, RunCounters{});
+  }
+  std::vector<TransformMessage> to_odom, to_base;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        (void)tf->take([&](const void* s, const dds_sample_info_t&) {
+          for (const auto& t : fromWire(*static_cast<const tf2_msgs_msg_dds__TFMessage_*>(s))) {
+            if (t.child_frame_id == p.odom_frame_id) to_odom.push_back(t);
+            if (t.child_frame_id == p.base_frame_id) to_base.push_back(t);
+          }
+        });
+        return to_odom.size() == 2 && to_base.size() == 2;
+      },
+      20))
+      << to_odom.size() << " map->odom, " << to_base.size() << " odom->base";
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(to_odom[i].frame_id, "map");
+    EXPECT_EQ(to_base[i].frame_id, p.odom_frame_id);
+    const FrameResult& r = i == 0 ? a : b;
+    const Eigen::Isometry3d T_map_cam = to_odom[i].T_parent_child * to_base[i].T_parent_child * p.T_base_cam;
+    EXPECT_LT((T_map_cam.matrix() - r.T_world_cam.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  }
+  EXPECT_LT((to_odom[0].T_parent_child.matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((to_odom[1].T_parent_child.matrix() - correction.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  // In odom the base moved by the odometry's 1 cm, not by the correction.
+  const Eigen::Isometry3d step = to_base[0].T_parent_child.inverse() * to_base[1].T_parent_child;
+  EXPECT_NEAR(step.translation().norm(), 0.01, 1e-9);
+  EXPECT_NEAR(Eigen::AngleAxisd(step.linear()).angle(), 0.0, 1e-9);
+}
+
 // ROS 2's readers accept XCDR1 only; Cyclone would pick XCDR2 by itself
 // for types that are not final.
 TEST(DdsLoopback, EveryWriterOffersXcdr1Only) {

@@ -6,7 +6,9 @@
 // from other sides), must not be corrected at all.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <optional>
 
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
@@ -54,6 +56,24 @@ class LoopClosureRun : public ::testing::Test {
     double ate_m = 0;
     LoopClosureCounters counters;
     alg::TriangleMesh mesh;
+    // The live poses as published, frame to frame: the largest step in the
+    // world (where a closure jumps) and in the odometry frame (where none may).
+    double world_max_step_m = 0, odom_max_step_m = 0;
+    Eigen::Isometry3d T_world_odom = Eigen::Isometry3d::Identity();
+  };
+  struct Steps {
+    std::optional<FrameResult> last;
+    double world = 0, odom = 0;
+    void add(const FrameResult& r) {
+      if (!r.tracked) return;
+      if (last) {
+        world = std::max(world, (r.T_world_cam.translation() - last->T_world_cam.translation()).norm());
+        const Eigen::Vector3d now = (r.T_world_odom.inverse() * r.T_world_cam).translation();
+        const Eigen::Vector3d before = (last->T_world_odom.inverse() * last->T_world_cam).translation();
+        odom = std::max(odom, (now - before).norm());
+      }
+      last = r;
+    }
   };
   /// `late_frames` > 0: the loop closer runs apart from the frontend, as
   /// on its real-time thread, and each correction reaches the frontend
@@ -69,9 +89,15 @@ class LoopClosureRun : public ::testing::Test {
     p.odometry_bias << 0.0, bias * M_PI / 180.0, 0.0, 0.02 * bias, 0.0, 0.0;  // deg and m per frame
     Frontend fe(cam_, p);
     fe.setInitialPose(truth.front().T_world_cam);
+    Steps steps;
     if (late_frames <= 0) {
-      for (const auto& f : frames) fe.process(f);
-      return {alg::computeAte(fe.trajectory(), truth).rmse_m, fe.loopClosureCounters(), fe.mesh({})};
+      for (const auto& f : frames) steps.add(fe.process(f));
+      return {alg::computeAte(fe.trajectory(), truth).rmse_m,
+              fe.loopClosureCounters(),
+              fe.mesh({}),
+              steps.world,
+              steps.odom,
+              steps.last->T_world_odom};
     }
     std::unique_ptr<LoopCloser> closer = fe.detachLoopCloser();
     std::vector<std::pair<size_t, LoopCorrection>> in_flight;  // due frame, correction
@@ -81,7 +107,7 @@ class LoopClosureRun : public ::testing::Test {
         fe.applyLoopCorrection(it->second);
         it = in_flight.erase(it);
       }
-      fe.process(frames[i]);
+      steps.add(fe.process(frames[i]));
       for (LoopKeyframe& kf : fe.takeLoopKeyframes()) closer->add(std::move(kf));
       while (closer->step()) {
         if (auto c = closer->takeCorrection()) in_flight.emplace_back(i + static_cast<size_t>(late_frames), std::move(*c));
@@ -89,7 +115,12 @@ class LoopClosureRun : public ::testing::Test {
     }
     for (auto& [due, c] : in_flight) fe.applyLoopCorrection(c);
     fe.attachLoopCloser(std::move(closer));
-    return {alg::computeAte(fe.trajectory(), truth).rmse_m, fe.loopClosureCounters(), fe.mesh({})};
+    return {alg::computeAte(fe.trajectory(), truth).rmse_m,
+            fe.loopClosureCounters(),
+            fe.mesh({}),
+            steps.world,
+            steps.odom,
+            steps.last->T_world_odom};
   }
   static inline const alg::PinholeCamera cam_{525.0, 525.0, 319.5, 239.5, 640, 480, {0, 0, 0, 0, 0}};
   static inline Trajectory loop_truth_;
@@ -108,6 +139,17 @@ TEST_F(LoopClosureRun, UndoesInjectedDriftAndLeavesNoDoubledWalls) {
   EXPECT_LT(on.ate_m, 0.4 * off.ate_m);
   EXPECT_GE(on.counters.keyframes_rebuilt, 20u);
   EXPECT_EQ(on.counters.applied, on.counters.closures);
+  // The live pose jumps where a closure moved the world; in the odometry
+  // frame (REP 105's odom, T_world_odom⁻¹ · T_world_cam) that jump is not
+  // there. What stays is the next frame aligning to the rebuilt map, whose
+  // keyframes moved a little differently from the live pose (13 mm here).
+  std::printf("largest step between frames: %.1f mm without closure; with: %.1f mm in the world, %.1f mm in odom\n",
+              1e3 * off.world_max_step_m, 1e3 * on.world_max_step_m, 1e3 * on.odom_max_step_m);
+  EXPECT_TRUE(off.T_world_odom.isApprox(Eigen::Isometry3d::Identity()));
+  EXPECT_GT(on.T_world_odom.translation().norm(), 0.01);
+  EXPECT_GT(on.world_max_step_m, 1.5 * off.world_max_step_m);
+  EXPECT_LT(on.odom_max_step_m, 0.7 * on.world_max_step_m);
+  EXPECT_LT(on.odom_max_step_m, off.world_max_step_m + 0.02);
 
   // Found on another thread and applied 12 frames later (keyframes made
   // meanwhile are moved into the corrected frame by the closer).

@@ -351,6 +351,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.name("frame_id", d.frame_id, false);
   v.name("child_frame_id", d.child_frame_id, false);
   v.name("base_frame_id", d.base_frame_id, true);
+  v.name("odom_frame_id", d.odom_frame_id, true);
   v.number("base_to_camera_x_m", d.base_to_camera_x_m, -100, 100);
   v.number("base_to_camera_y_m", d.base_to_camera_y_m, -100, 100);
   v.number("base_to_camera_z_m", d.base_to_camera_z_m, -100, 100);

@@ -147,17 +147,19 @@ MarkerArrayWire::MarkerArrayWire(const std::vector<MarkerMessage>& in)
   wire.markers = view<dds_sequence_visualization_msgs_msg_dds__Marker_>(markers);
 }
 
-TfWire::TfWire(const TransformMessage& m) {
-  transform.header.stamp = toTime(m.stamp_ns);
-  transform.header.frame_id = const_cast<char*>(m.frame_id.c_str());
-  transform.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
-  const Eigen::Vector3d t = m.T_parent_child.translation();
-  const Eigen::Quaterniond q(m.T_parent_child.linear());
-  transform.transform.translation = {t.x(), t.y(), t.z()};
-  transform.transform.rotation = {q.x(), q.y(), q.z(), q.w()};
-  wire.transforms._maximum = wire.transforms._length = 1;
-  wire.transforms._buffer = &transform;
-  wire.transforms._release = false;
+TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) {
+  for (size_t i = 0; i < in.size(); ++i) {
+    const TransformMessage& m = in[i];
+    geometry_msgs_msg_dds__TransformStamped_& w = transforms[i];
+    w.header.stamp = toTime(m.stamp_ns);
+    w.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+    w.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
+    const Eigen::Vector3d t = m.T_parent_child.translation();
+    const Eigen::Quaterniond q(m.T_parent_child.linear());
+    w.transform.translation = {t.x(), t.y(), t.z()};
+    w.transform.rotation = {q.x(), q.y(), q.z(), q.w()};
+  }
+  wire.transforms = view<dds_sequence_geometry_msgs_msg_dds__TransformStamped_>(transforms);
 }
 
 PathWire::PathWire(const PathMessage& m) : poses(m.poses.size()) {

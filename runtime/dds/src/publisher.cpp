@@ -78,8 +78,8 @@ Expected<std::unique_ptr<Publisher>> Publisher::start(const PublisherParams& par
   }
   if (!params.base_frame_id.empty()) {
     // The fixed part, once: transient local, so late joiners get it too.
-    const TransformMessage fixed{0, params.base_frame_id, params.child_frame_id, params.T_base_cam};
-    const TfWire tf(fixed);
+    const std::vector<TransformMessage> fixed{{0, params.base_frame_id, params.child_frame_id, params.T_base_cam}};
+    const TfWire tf(fixed);  // points into `fixed`
     if (auto s = p->writers_[static_cast<size_t>(Topic::kTfStatic)].write(&tf.wire); !s) return Error{s.message()};
   }
   p->thread_ = std::thread([raw = p.get()] {
@@ -187,12 +187,21 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
     } else {
       recordError(s);
     }
-    const TransformMessage transform =
-        params_.base_frame_id.empty()
-            ? TransformMessage{stamp, params_.frame_id, params_.child_frame_id, result.T_world_cam}
-            : TransformMessage{stamp, params_.frame_id, params_.base_frame_id,
-                               result.T_world_cam * params_.T_base_cam.inverse()};
-    const TfWire tf(transform);  // points into `transform`
+    // map -> the base (or the camera itself), through odom when named:
+    // map -> odom carries loop closures' corrections, odom -> base never
+    // jumps at one (REP 105).
+    const bool base = !params_.base_frame_id.empty();
+    const std::string& moving = base ? params_.base_frame_id : params_.child_frame_id;
+    const Eigen::Isometry3d T_world_moving =
+        base ? result.T_world_cam * params_.T_base_cam.inverse() : result.T_world_cam;
+    std::vector<TransformMessage> transforms;
+    if (params_.odom_frame_id.empty()) {
+      transforms.push_back({stamp, params_.frame_id, moving, T_world_moving});
+    } else {
+      transforms.push_back({stamp, params_.frame_id, params_.odom_frame_id, result.T_world_odom});
+      transforms.push_back({stamp, params_.odom_frame_id, moving, result.T_world_odom.inverse() * T_world_moving});
+    }
+    const TfWire tf(transforms);  // points into `transforms`
     if (const Status st = writers_[static_cast<size_t>(Topic::kTf)].write(&tf.wire); st) {
       ++transforms_;
     } else {

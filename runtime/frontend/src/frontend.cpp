@@ -102,6 +102,7 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
   // the depth image's stamp (the color stamp cost 1.17 -> 1.28 cm ATE on
   // the whole TUM fr1/xyz, whose images are up to 17 ms apart).
   r.stamp_ns = frame.depth_stamp_ns > 0 ? frame.depth_stamp_ns : frame.stamp_ns;
+  r.T_world_odom = T_world_odom_;
 
   // 1. Preprocess: depth in meters, denoise, pyramid, normals, confidence.
   alg::PreprocessedFrame pre;
@@ -256,6 +257,7 @@ void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& 
     }
     r.stage_ms[kKeyframe] += loop_ms;
     r.T_world_cam = trajectory_.back().T_world_cam;
+    r.T_world_odom = T_world_odom_;
   }
 }
 

@@ -80,6 +80,7 @@ void Frontend::applyLoopCorrection(LoopCorrection& c) {
   T_previous_color_ = newest * T_previous_color_;
   T_keyframe_color_ = newest * T_keyframe_color_;
   T_last_kf_ = newest * T_last_kf_;
+  T_world_odom_ = newest * T_world_odom_;
   // Pose feedback's kept keyframes were fused at poses that no longer
   // exist in the rebuilt map: they leave the re-integration queue.
   kept_.clear();

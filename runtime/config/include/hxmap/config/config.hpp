@@ -130,6 +130,10 @@ struct DdsConfig {
   /// base_frame_id, /tf_static base_frame_id -> child_frame_id, the camera
   /// mounted at base_to_camera_*. Empty: the camera itself on /tf.
   std::string base_frame_id;
+  /// An odometry frame (REP 105; e.g. "odom"): /tf carries frame_id ->
+  /// odom_frame_id (what loop closures corrected) and odom_frame_id -> the
+  /// base or camera (never jumps at a closure). Empty: no odom frame.
+  std::string odom_frame_id;
   double base_to_camera_x_m = 0, base_to_camera_y_m = 0, base_to_camera_z_m = 0;
   double base_to_camera_roll_deg = 0, base_to_camera_pitch_deg = 0, base_to_camera_yaw_deg = 0;
   double map_period_s = 1.0;           ///< changed map regions go out at most this often

@@ -123,8 +123,8 @@ struct MarkerArrayWire {
   visualization_msgs_msg_dds__MarkerArray_ wire{};
 };
 struct TfWire {
-  explicit TfWire(const TransformMessage& m);
-  geometry_msgs_msg_dds__TransformStamped_ transform{};
+  explicit TfWire(const std::vector<TransformMessage>& m);
+  std::vector<geometry_msgs_msg_dds__TransformStamped_> transforms;
   tf2_msgs_msg_dds__TFMessage_ wire{};
 };
 struct HealthWire {

@@ -58,6 +58,10 @@ struct PublisherParams {
   /// (T_base_cam, the optical frame in the base's). Empty: the camera
   /// itself goes on /tf.
   std::string base_frame_id;
+  /// An odometry frame (REP 105; e.g. "odom"): /tf carries frame_id ->
+  /// odom_frame_id (loop closures' corrections) and odom_frame_id -> the
+  /// base or camera (continuous). Empty: frame_id -> base or camera.
+  std::string odom_frame_id;
   Eigen::Isometry3d T_base_cam = Eigen::Isometry3d::Identity();
   /// Added to every stamp sent: 0 for recordings (their recorded stamps);
   /// for live cameras, whose stamps are CLOCK_MONOTONIC, the offset of

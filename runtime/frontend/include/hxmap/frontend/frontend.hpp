@@ -284,6 +284,7 @@ class Frontend {
   Eigen::Isometry3d T_last_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d velocity_ = Eigen::Isometry3d::Identity();  ///< T_prev^-1 T_last
   Eigen::Isometry3d T_last_kf_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_world_odom_ = Eigen::Isometry3d::Identity();  ///< loop closures' corrections, composed
   int64_t last_kf_ns_ = 0;
   float last_kf_depth_m_ = 0;  ///< median depth of the last keyframe (its coarsest level)
   Trajectory trajectory_;

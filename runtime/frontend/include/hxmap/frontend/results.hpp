@@ -25,6 +25,10 @@ inline const char* stageName(int s) {
 struct FrameResult {
   int64_t stamp_ns = 0;  ///< the time the pose refers to: the depth image's capture
   Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+  /// The corrections loop closure has applied so far, composed: the pose in
+  /// an odometry frame that never jumps at a closure is T_world_odom⁻¹ ·
+  /// T_world_cam (REP 105's map -> odom is this transform).
+  Eigen::Isometry3d T_world_odom = Eigen::Isometry3d::Identity();
   bool tracked = false;  ///< the frame has a pose (tracked or degraded; the first frame)
   alg::TrackingState state = alg::TrackingState::kLost;
   alg::PoseSource pose_source = alg::PoseSource::kNone;
