@@ -57,12 +57,18 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
 
 std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
   return fmt::format(
-      "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} MiB, "
+      "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} "
+      "MiB, "
       "{:.1f} KiB/s over {:.1f} s), work items dropped {}, write errors {}\n"
-      "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} ms in all); "
+      "  map as MarkerArray: {} samples, {:.2f} MiB, {} whole-map resends to readers that joined; "
+      "final data not acknowledged by every reliable reader in time: {} times\n"
+      "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} ms in "
+      "all); "
       "meshing and writing chunks {:.1f} ms in all on hx-publish\n",
-      s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks, static_cast<double>(s.chunk_bytes) / (1 << 20),
+      s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks,
+      static_cast<double>(s.chunk_bytes) / (1 << 20),
       wall_s > 0 ? static_cast<double>(s.chunk_bytes) / 1024.0 / wall_s : 0.0, wall_s, s.items_dropped, s.write_errors,
+      s.marker_arrays, static_cast<double>(s.marker_bytes) / (1 << 20), s.map_resends, s.ack_timeouts,
       s.frame_cost_p50_ms, s.frame_cost_max_ms, s.snapshot_ms_total, s.mesh_ms_total);
 }
 

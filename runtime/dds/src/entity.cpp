@@ -29,9 +29,18 @@ void setTypeHash(dds_qos_t* qos, const dds_topic_descriptor_t* type) {
 
 QosPtr makeQos(const TopicQos& q) {
   QosPtr qos(dds_create_qos());
-  dds_qset_reliability(qos.get(), q.reliable ? DDS_RELIABILITY_RELIABLE : DDS_RELIABILITY_BEST_EFFORT, DDS_MSECS(100));
+  dds_qset_reliability(qos.get(), q.reliable ? DDS_RELIABILITY_RELIABLE : DDS_RELIABILITY_BEST_EFFORT,
+                       static_cast<dds_duration_t>(q.max_blocking_s * 1e9));
   dds_qset_durability(qos.get(), q.transient_local ? DDS_DURABILITY_TRANSIENT_LOCAL : DDS_DURABILITY_VOLATILE);
-  dds_qset_history(qos.get(), DDS_HISTORY_KEEP_LAST, q.depth);
+  if (q.keep_all) {
+    // Keep-all for delivery; what a late joiner gets is the durability
+    // service's history (Cyclone serves transient-local data from it).
+    dds_qset_history(qos.get(), DDS_HISTORY_KEEP_ALL, 0);
+    dds_qset_durability_service(qos.get(), 0, DDS_HISTORY_KEEP_LAST, q.depth, DDS_LENGTH_UNLIMITED,
+                                DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  } else {
+    dds_qset_history(qos.get(), DDS_HISTORY_KEEP_LAST, q.depth);
+  }
   // XCDR1, stated rather than left to Cyclone's choice by the types'
   // extensibility (XCDR2 for appendable types): ROS 2's readers take XCDR1.
   const dds_data_representation_id_t xcdr1 = DDS_DATA_REPRESENTATION_XCDR1;
@@ -105,6 +114,10 @@ uint32_t Writer::matchedReadersTotal() const {
   dds_publication_matched_status_t s{};
   if (dds_get_publication_matched_status(writer_.get(), &s) != DDS_RETCODE_OK) return 0;
   return s.total_count;
+}
+
+bool Writer::waitForAcks(double timeout_s) const {
+  return dds_wait_for_acks(writer_.get(), static_cast<dds_duration_t>(timeout_s * 1e9)) == DDS_RETCODE_OK;
 }
 
 Expected<Reader> Reader::create(const Participant& participant, const dds_topic_descriptor_t* type,

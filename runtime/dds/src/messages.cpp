@@ -90,7 +90,10 @@ TopicQos topicQos(Topic topic) {
   switch (topic) {
     case Topic::kPose: return {true, false, 10};  // reliable: ROS 2's default readers ask for it (REP 2003)
     case Topic::kTrajectory: return {true, true, 1};
-    case Topic::kMap: return {true, true, 1};
+    // Each sample is an increment: none may be replaced before a reader
+    // has it; a slow reader makes hx-publish wait, never the frontend.
+    case Topic::kMap:
+      return {true, true, 1, true, 2.0};
     case Topic::kMapChunks:
       return {true, true, 1};
     case Topic::kHealth: return {true, true, 1};

@@ -235,6 +235,17 @@ void Publisher::flush(const alg::TsdfMap& map, const Trajectory& trajectory, con
        seen = flushed_seq_.load(std::memory_order_acquire)) {
     flushed_seq_.wait(seen, std::memory_order_acquire);
   }
+  // Written is not delivered: a process that exits after a flush would take
+  // the last map update (large, in fragments) and poses still unacknowledged
+  // with it. Wait for the reliable readers, bounded.
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(params_.flush_ack_timeout_s);
+  for (const Writer& w : writers_) {
+    const double left = std::chrono::duration<double>(end - std::chrono::steady_clock::now()).count();
+    if (left <= 0 || !w.waitForAcks(left)) {
+      ++ack_timeouts_;
+      break;
+    }
+  }
 }
 
 void Publisher::run() {
@@ -360,7 +371,10 @@ void Publisher::writeMarkers(const std::vector<MarkerMessage>& markers) {
   const MarkerArrayWire wire(markers);
   const Status s = writers_[static_cast<size_t>(Topic::kMap)].write(&wire.wire);
   if (!s) {
+    // A reader too slow for the writer's patience missed an increment:
+    // everyone gets the whole map again (with the next work item).
     recordError(s);
+    resend_all_ = true;
     return;
   }
   size_t bytes = 0;
@@ -371,8 +385,9 @@ void Publisher::writeMarkers(const std::vector<MarkerMessage>& markers) {
 
 void Publisher::resendMapToNewReaders() {
   const uint32_t total = writers_[static_cast<size_t>(Topic::kMap)].matchedReadersTotal();
-  if (total <= map_readers_seen_) return;
+  if (total <= map_readers_seen_ && !resend_all_) return;
   map_readers_seen_ = total;
+  resend_all_ = false;
   std::vector<MarkerMessage> markers;
   for (const auto& [key, state] : regions_) {
     for (size_t i = 0; i < state.meshes.size(); ++i) {
@@ -404,6 +419,7 @@ PublisherStats Publisher::stats() const {
   s.marker_arrays = marker_arrays_.load();
   s.marker_bytes = marker_bytes_.load();
   s.map_resends = map_resends_.load();
+  s.ack_timeouts = ack_timeouts_;
   s.items_dropped = items_dropped_;
   s.write_errors = write_errors_.load();
   {

@@ -52,6 +52,12 @@ struct TopicQos {
   bool reliable = true;
   bool transient_local = false;  ///< late joiners receive the history kept by the writer
   int depth = 1;                 ///< keep-last depth per instance
+  /// Writers keep every sample until each reliable reader has it (a write
+  /// waits for a slow reader, up to max_blocking_s, instead of replacing a
+  /// sample not yet delivered); late joiners still get `depth` samples.
+  /// For topics whose samples are increments, not states.
+  bool keep_all = false;
+  double max_blocking_s = 0.1;
 };
 
 class Participant {
@@ -75,6 +81,9 @@ class Writer {
   uint32_t matchedReaders() const;
   /// Readers ever matched (a reader that came, went and came back counts twice).
   uint32_t matchedReadersTotal() const;
+  /// Blocks until every reliable reader has acknowledged what was written,
+  /// or `timeout_s` passes (false then).
+  bool waitForAcks(double timeout_s) const;
   const std::string& topic() const { return topic_; }
   dds_entity_t get() const { return writer_.get(); }
 

@@ -3,7 +3,8 @@
 //
 //   rt/<prefix>/pose        geometry_msgs/PoseStamped  reliable, volatile, keep last 10
 //   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
-//   rt/<prefix>/map         visualization_msgs/MarkerArray  reliable, transient local, keep last 1;
+//   rt/<prefix>/map         visualization_msgs/MarkerArray  reliable, keep all (no update replaced
+//                           before delivery), transient local with the newest 1;
 //                           the whole map again whenever a reader joins
 //   rt/<prefix>/map_chunks  hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
 //   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1

@@ -77,6 +77,7 @@ struct PublisherParams {
   int region_blocks = 4;             ///< region side in TSDF blocks
   int max_triangles_per_chunk = 16384;
   int queue_capacity = 16;           ///< work items between the frontend and the publisher thread
+  double flush_ack_timeout_s = 2.0;  ///< flush() waits this long at most for reliable readers' acknowledgments
   alg::MeshParams mesh;
 };
 
@@ -90,6 +91,7 @@ struct PublisherStats {
   uint64_t marker_arrays = 0;   ///< MarkerArray samples written on the map topic (one per update)
   uint64_t marker_bytes = 0;    ///< their payload (points, colors)
   uint64_t map_resends = 0;     ///< whole-map MarkerArrays sent because a reader joined
+  uint64_t ack_timeouts = 0;    ///< flushes whose data some reliable reader had not acknowledged in time
   uint64_t items_dropped = 0;   ///< work items the full ring refused (data delayed, not lost)
   uint64_t write_errors = 0;
   std::string last_error;
@@ -110,8 +112,9 @@ class Publisher {
   void onFrame(const FrameResult& result, const alg::TsdfMap& map, const Trajectory& trajectory,
                const RunCounters& counters);
   /// Same thread: publishes every region changed since the last update, the
-  /// whole trajectory and health now, and returns once they are written
-  /// (end of a run, tests).
+  /// whole trajectory and health now, and returns once they are written and
+  /// the reliable readers have acknowledged them (at most
+  /// flush_ack_timeout_s; end of a run, tests).
   void flush(const alg::TsdfMap& map, const Trajectory& trajectory, const RunCounters& counters);
 
   /// Calling thread; consistent after flush().
@@ -152,7 +155,7 @@ class Publisher {
   double snapshot_ms_total_ = 0;
   std::vector<double> period_latency_ms_, period_frontend_ms_;
   uint64_t frames_ = 0, frames_lost_ = 0, keyframes_ = 0, period_frames_ = 0;
-  uint64_t poses_ = 0, transforms_ = 0, items_dropped_ = 0;
+  uint64_t poses_ = 0, transforms_ = 0, items_dropped_ = 0, ack_timeouts_ = 0;
 
   // Publisher thread (read by stats() after a flush).
   struct RegionState {
@@ -165,6 +168,7 @@ class Publisher {
   int32_t next_marker_id_ = 0;
   int64_t last_map_stamp_ns_ = 0;
   uint32_t map_readers_seen_ = 0;  ///< the map writer's matched readers, counted over the run
+  bool resend_all_ = false;        ///< a MarkerArray write failed: send the whole map again
   std::atomic<uint64_t> paths_{0}, health_{0}, map_updates_{0}, regions_written_{0}, chunks_{0}, chunk_bytes_{0};
   std::atomic<uint64_t> marker_arrays_{0}, marker_bytes_{0}, map_resends_{0};
   std::atomic<uint64_t> write_errors_{0};
