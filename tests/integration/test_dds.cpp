@@ -451,6 +451,42 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   EXPECT_EQ((*pub)->stats().write_errors, 0u);
 }
 
+// A loop closure replaces the map with one fused anew from the keyframes;
+// regions the new map does not hold must leave the readers' maps too.
+TEST(DdsLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {
+  const std::string pre = prefix("replace");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader =
+      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  auto chunks = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
+                               topicQos(Topic::kMapChunks));
+  ASSERT_TRUE(reader && chunks);
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
+  alg::TsdfMap before(tsdfParams());
+  addSphere(before, {0.05f, -0.07f, 0.11f}, 0.23f);
+  addSphere(before, {0.9f, 0.1f, 0.4f}, 0.12f);
+  const Trajectory trajectory{{1, poseAt(0)}};
+  (*pub)->flush(before, trajectory, RunCounters{});
+  alg::TsdfMap after(tsdfParams());  // the first sphere only
+  addSphere(after, {0.05f, -0.07f, 0.11f}, 0.23f);
+  after.markAllChanged(before.revision());
+  (*pub)->flush(after, trajectory, RunCounters{});
+  const size_t expected = alg::extractMesh(after, alg::MeshParams{}).triangles.size();
+  ReceivedMarkers markers;
+  ReceivedMap map;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drainMarkers(*reader, markers);
+        drainMap(*chunks, map);
+        return markers.totals().first == expected && map.totals().first == expected;
+      },
+      20))
+      << markers.totals().first << " and " << map.totals().first << " triangles, expected " << expected;
+}
+
 // /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):
 // The transforms for `child` a /tf or /tf_static reader has now.
 std::vector<TransformMessage> takeTransforms(Reader& reader, const std::string& child) {

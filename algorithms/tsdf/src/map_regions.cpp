@@ -22,7 +22,27 @@ RegionKey regionOf(const BlockKey& block, int region_blocks) {
 
 std::vector<RegionKey> changedRegions(const TsdfMap& map, uint64_t revision, int region_blocks) {
   std::vector<RegionKey> regions;
-  for (const int32_t b : map.changedSince(revision)) regions.push_back(regionOf(map.key(static_cast<size_t>(b)), region_blocks));
+  for (const int32_t b : map.changedSince(revision)) {
+    const BlockKey& k = map.key(static_cast<size_t>(b));
+    const RegionKey r = regionOf(k, region_blocks);
+    // A block on the region's -x/-y/-z face is also in the layer beyond
+    // the +x/+y/+z faces that the neighbours' marching cubes read.
+    const Eigen::Vector3i first = (k.array() == (r * region_blocks).array()).cast<int>();
+    for (int dz = 0; dz <= first.z(); ++dz) {
+      for (int dy = 0; dy <= first.y(); ++dy) {
+        for (int dx = 0; dx <= first.x(); ++dx) regions.push_back(r - RegionKey(dx, dy, dz));
+      }
+    }
+  }
+  std::sort(regions.begin(), regions.end(), keyLess);
+  regions.erase(std::unique(regions.begin(), regions.end()), regions.end());
+  return regions;
+}
+
+std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks) {
+  std::vector<RegionKey> regions;
+  regions.reserve(map.blockCount());
+  for (size_t b = 0; b < map.blockCount(); ++b) regions.push_back(regionOf(map.key(b), region_blocks));
   std::sort(regions.begin(), regions.end(), keyLess);
   regions.erase(std::unique(regions.begin(), regions.end()), regions.end());
   return regions;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <unordered_set>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -117,12 +118,31 @@ void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must
   work->kind = Work::kMap;
   work->stamp_ns = stamp_ns;
   work->regions = alg::changedRegions(map, map_revision_, params_.region_blocks);
+  // Regions sent before that hold no block now (a loop closure rebuilt the
+  // map without them) go out too: meshed empty, they are deleted.
+  const std::vector<alg::RegionKey> occupied = alg::occupiedRegions(map, params_.region_blocks);
+  std::unordered_set<uint64_t> live;
+  for (const auto& r : occupied) live.insert(packRegion(r));
+  std::vector<uint64_t> vanished;
+  for (const auto& [key, r] : sent_regions_) {
+    if (live.count(key) == 0) {
+      vanished.push_back(key);
+      work->regions.push_back(r);
+    }
+  }
   if (work->regions.empty()) return;
+  std::vector<alg::RegionKey> now_sent;
+  for (const auto& r : work->regions) {
+    if (live.count(packRegion(r)) != 0) now_sent.push_back(r);
+  }
   work->snapshot = std::make_unique<alg::TsdfMap>(alg::copyRegions(map, work->regions, params_.region_blocks));
   snapshot_ms_total_ += static_cast<double>(nowNs() - t0) * 1e-6;
   const uint64_t revision = map.revision();
   // Refused: the regions stay marked and go out with the next update.
-  if (push(std::move(work), must)) map_revision_ = revision;
+  if (!push(std::move(work), must)) return;
+  map_revision_ = revision;
+  for (uint64_t key : vanished) sent_regions_.erase(key);
+  for (const auto& r : now_sent) sent_regions_.emplace(packRegion(r), r);
 }
 
 void Publisher::queuePath(const Trajectory& trajectory, int64_t stamp_ns, bool must) {

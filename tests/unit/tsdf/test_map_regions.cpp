@@ -2,6 +2,8 @@
 // meshes, and splitting meshes into bounded parts.
 #include <gtest/gtest.h>
 
+#include <array>
+#include <map>
 #include <set>
 
 #include "hxmap/tsdf/map_regions.hpp"
@@ -102,7 +104,8 @@ TEST(MapRegions, ChangedRegionsFollowWrites) {
   TsdfMap map = sphereMap();
   const uint64_t r0 = map.revision();
   EXPECT_TRUE(changedRegions(map, r0, 4).empty());
-  // A patch touching one voxel changes exactly its region.
+  // A patch touching one voxel changes its region and, as its block is on
+  // that region's -z face, the region below, whose marching cubes read it.
   TsdfPatch patch;
   TsdfPatch::Entry e;
   e.voxel = map.voxelOf(Eigen::Vector3f(0.05f + 0.23f, -0.07f, 0.11f));
@@ -112,12 +115,48 @@ TEST(MapRegions, ChangedRegionsFollowWrites) {
   applyPatch(map, patch);
   EXPECT_GT(map.revision(), r0);
   const std::vector<RegionKey> changed = changedRegions(map, r0, 4);
-  ASSERT_EQ(changed.size(), 1u);
-  EXPECT_EQ(changed[0], regionOf(BlockKey(e.voxel.x() >> 3, e.voxel.y() >> 3, e.voxel.z() >> 3), 4));
+  const BlockKey block(e.voxel.x() >> 3, e.voxel.y() >> 3, e.voxel.z() >> 3);
+  ASSERT_EQ(block.z() % 4, 0) << "the voxel's block is on its region's -z face";
+  ASSERT_EQ(changed.size(), 2u);
+  EXPECT_EQ(changed[0], regionOf(block, 4) - RegionKey(0, 0, 1));
+  EXPECT_EQ(changed[1], regionOf(block, 4));
   EXPECT_TRUE(changedRegions(map, map.revision(), 4).empty());
   // Sorted and unique.
   const auto all = changedRegions(map, 0, 2);
   for (size_t i = 1; i < all.size(); ++i) EXPECT_TRUE(keyLess(all[i - 1], all[i]));
+}
+
+TEST(MapRegions, RemeshingTheChangedRegionsKeepsTheirMeshesTheFullMesh) {
+  // A publisher keeps each region's mesh and re-meshes the changed regions
+  // only; after an edit across region faces the kept meshes must still
+  // make the whole map's mesh (the faces' neighbours included).
+  TsdfMap map = sphereMap();
+  const MeshParams mp;
+  std::map<std::array<int, 3>, size_t> triangles;
+  auto remesh = [&](const std::vector<RegionKey>& regions) {
+    for (const RegionKey& r : regions) triangles[{r.x(), r.y(), r.z()}] = regionMesh(map, r, 4, mp).triangles.size();
+  };
+  remesh(changedRegions(map, 0, 4));
+  const uint64_t r0 = map.revision();
+  // Carve a slab one voxel thick on a plane of region faces (x = 0).
+  TsdfPatch carve;
+  for (int z = -20; z <= 20; ++z) {
+    for (int y = -20; y <= 20; ++y) {
+      TsdfPatch::Entry e;
+      e.voxel = Eigen::Vector3i(0, y, z);
+      int index = 0;
+      if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
+      e.sdf_m = map.truncation();
+      e.weight = 1000.0f;
+      carve.entries.push_back(e);
+    }
+  }
+  ASSERT_GT(carve.entries.size(), 100u);
+  applyPatch(map, carve);
+  remesh(changedRegions(map, r0, 4));
+  size_t total = 0;
+  for (const auto& [key, n] : triangles) total += n;
+  EXPECT_EQ(total, extractMesh(map, mp).triangles.size());
 }
 
 TEST(MapRegions, AReplacingMapIsChangedEverywhereAfterTheOldRevision) {

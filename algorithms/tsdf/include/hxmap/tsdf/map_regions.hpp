@@ -26,9 +26,14 @@ using RegionKey = Eigen::Vector3i;
 /// The region holding a block (floor division).
 RegionKey regionOf(const BlockKey& block, int region_blocks);
 
-/// Regions with a block written after `revision` (TsdfMap::changedSince),
-/// sorted and unique.
+/// Regions whose mesh a block written after `revision` (TsdfMap::changedSince)
+/// may change: the block's own and, for a block on its region's -x/-y/-z
+/// face, the neighbours that read it beyond their +x/+y/+z faces. Sorted
+/// and unique.
 std::vector<RegionKey> changedRegions(const TsdfMap& map, uint64_t revision, int region_blocks);
+
+/// Regions holding at least one block, sorted and unique.
+std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks);
 
 /// A map holding copies of the blocks of `regions` and of the blocks just
 /// beyond their +x/+y/+z faces, which the regions' marching cubes read.

@@ -149,6 +149,7 @@ class Publisher {
 
   // Calling thread.
   uint64_t map_revision_ = 0;
+  std::unordered_map<uint64_t, alg::RegionKey> sent_regions_;  ///< regions handed to hx-publish, still in the map
   int64_t last_map_ns_ = 0, last_path_ns_ = 0, last_health_ns_ = 0;
   uint32_t flush_count_ = 0;
   std::vector<double> frame_cost_ms_;
