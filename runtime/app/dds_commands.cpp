@@ -115,6 +115,9 @@ int echoCommand(const EchoOptions& o) {
       case dds::Topic::kPose:
         line = dds::describe(dds::fromWire(*static_cast<const geometry_msgs_msg_dds__PoseStamped_*>(sample)));
         break;
+      case dds::Topic::kOdom:
+        line = dds::describe(dds::fromWire(*static_cast<const nav_msgs_msg_dds__Odometry_*>(sample)));
+        break;
       case dds::Topic::kTrajectory:
         line = dds::describe(dds::fromWire(*static_cast<const nav_msgs_msg_dds__Path_*>(sample)));
         break;

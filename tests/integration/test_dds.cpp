@@ -607,7 +607,12 @@ TEST(DdsLoopback, WithAnOdomFrameAClosureMovesMapToOdomAndOdomToBaseStaysContinu
   ASSERT_TRUE(participant) << participant.message();
   auto tf = Reader::create(*participant, topicType(Topic::kTf), "rt/tf", topicQos(Topic::kTf));
   ASSERT_TRUE(tf) << tf.message();
-  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kTf) > 0 && tf->matchedWriters() > 0; }, 20));
+  auto odom =
+      Reader::create(*participant, topicType(Topic::kOdom), topicName(Topic::kOdom, pre), topicQos(Topic::kOdom));
+  ASSERT_TRUE(odom) << odom.message();
+  ASSERT_TRUE(waitFor(
+      [&] { return (*pub)->matchedReaders(Topic::kTf) > 0 && tf->matchedWriters() > 0 && odom->matchedWriters() > 0; },
+      20));
   // Two frames 1 cm apart in odometry; a closure between them moved the
   // world by 5 cm and 2 degrees.
   const Eigen::Isometry3d correction =
@@ -647,6 +652,25 @@ TEST(DdsLoopback, WithAnOdomFrameAClosureMovesMapToOdomAndOdomToBaseStaysContinu
   const Eigen::Isometry3d step = to_base[0].T_parent_child.inverse() * to_base[1].T_parent_child;
   EXPECT_NEAR(step.translation().norm(), 0.01, 1e-9);
   EXPECT_NEAR(Eigen::AngleAxisd(step.linear()).angle(), 0.0, 1e-9);
+  // nav_msgs/Odometry: the odom -> base link, with the velocity in the base
+  // frame (1 cm in 33.3 ms: 0.3 m/s along the base's own motion).
+  std::vector<OdometryMessage> odoms;
+  ASSERT_TRUE(waitFor(
+      [&] {
+        (void)odom->take([&](const void* s, const dds_sample_info_t&) {
+          odoms.push_back(fromWire(*static_cast<const nav_msgs_msg_dds__Odometry_*>(s)));
+        });
+        return odoms.size() == 2;
+      },
+      20));
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(odoms[i].frame_id, p.odom_frame_id);
+    EXPECT_EQ(odoms[i].child_frame_id, p.base_frame_id);
+    EXPECT_LT((odoms[i].T_parent_child.matrix() - to_base[i].T_parent_child.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+  }
+  EXPECT_NEAR(odoms[1].linear.norm(), 0.01 / 0.033333333, 1e-6);
+  EXPECT_LT((odoms[1].linear / odoms[1].linear.norm() - step.translation() / step.translation().norm()).norm(), 1e-9);
+  EXPECT_NEAR(odoms[1].angular.norm(), 0.0, 1e-9);
 }
 
 // ROS 2's readers accept XCDR1 only; Cyclone would pick XCDR2 by itself

@@ -66,6 +66,8 @@ std::string topicName(Topic topic, const std::string& prefix) {
 const char* topicShortName(Topic topic) {
   switch (topic) {
     case Topic::kPose: return "pose";
+    case Topic::kOdom:
+      return "odom";
     case Topic::kTrajectory: return "trajectory";
     case Topic::kMap: return "map";
     case Topic::kMapChunks:
@@ -83,12 +85,14 @@ Expected<Topic> topicFromString(const std::string& name) {
     if (name == topicShortName(t)) return t;
   }
   return Error{
-      fmt::format("unknown topic '{}' (known: pose, trajectory, map, map_chunks, health, tf, tf_static)", name)};
+      fmt::format("unknown topic '{}' (known: pose, odom, trajectory, map, map_chunks, health, tf, tf_static)", name)};
 }
 
 TopicQos topicQos(Topic topic) {
   switch (topic) {
     case Topic::kPose: return {true, false, 10};  // reliable: ROS 2's default readers ask for it (REP 2003)
+    case Topic::kOdom:
+      return {true, false, 10};
     case Topic::kTrajectory: return {true, true, 1};
     // Each sample is an increment: none may be replaced before a reader
     // has it; a slow reader makes hx-publish wait, never the frontend.
@@ -107,6 +111,8 @@ TopicQos topicQos(Topic topic) {
 const dds_topic_descriptor_t* topicType(Topic topic) {
   switch (topic) {
     case Topic::kPose: return &geometry_msgs_msg_dds__PoseStamped__desc;
+    case Topic::kOdom:
+      return &nav_msgs_msg_dds__Odometry__desc;
     case Topic::kTrajectory: return &nav_msgs_msg_dds__Path__desc;
     case Topic::kMap:
       return &visualization_msgs_msg_dds__MarkerArray__desc;
@@ -165,6 +171,18 @@ TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) 
   wire.transforms = view<dds_sequence_geometry_msgs_msg_dds__TransformStamped_>(transforms);
 }
 
+OdometryWire::OdometryWire(const OdometryMessage& m) {
+  wire.header.stamp = toTime(m.stamp_ns);
+  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
+  const Eigen::Vector3d t = m.T_parent_child.translation();
+  const Eigen::Quaterniond q(m.T_parent_child.linear());
+  wire.pose.pose.position = {t.x(), t.y(), t.z()};
+  wire.pose.pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+  wire.twist.twist.linear = {m.linear.x(), m.linear.y(), m.linear.z()};
+  wire.twist.twist.angular = {m.angular.x(), m.angular.y(), m.angular.z()};
+}
+
 PathWire::PathWire(const PathMessage& m) : poses(m.poses.size()) {
   for (size_t i = 0; i < m.poses.size(); ++i) fillPose(poses[i], m.poses[i].stamp_ns, m.frame_id, m.poses[i].T_world_cam);
   wire.header.stamp = toTime(m.stamp_ns);
@@ -215,6 +233,21 @@ PathMessage fromWire(const nav_msgs_msg_dds__Path_& w) {
   m.frame_id = str(w.header.frame_id);
   m.poses.reserve(w.poses._length);
   for (uint32_t i = 0; i < w.poses._length; ++i) m.poses.push_back(readPose(w.poses._buffer[i]));
+  return m;
+}
+
+OdometryMessage fromWire(const nav_msgs_msg_dds__Odometry_& w) {
+  OdometryMessage m;
+  m.stamp_ns = fromTime(w.header.stamp);
+  m.frame_id = str(w.header.frame_id);
+  m.child_frame_id = str(w.child_frame_id);
+  const auto& p = w.pose.pose;
+  Eigen::Quaterniond q(p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z);
+  if (q.norm() > 0) q.normalize();
+  m.T_parent_child.linear() = q.toRotationMatrix();
+  m.T_parent_child.translation() = Eigen::Vector3d(p.position.x, p.position.y, p.position.z);
+  m.linear = {w.twist.twist.linear.x, w.twist.twist.linear.y, w.twist.twist.linear.z};
+  m.angular = {w.twist.twist.angular.x, w.twist.twist.angular.y, w.twist.twist.angular.z};
   return m;
 }
 
@@ -354,6 +387,16 @@ std::string describe(const std::vector<MarkerMessage>& markers) {
   return fmt::format("markers {} {} added {} deleted {} triangles {} bytes {}",
                      markers.empty() ? "0.000000000" : stampText(markers.front().stamp_ns),
                      markers.empty() ? "" : markers.front().frame_id, added, deleted, triangles, bytes);
+}
+
+std::string describe(const OdometryMessage& m) {
+  const Eigen::Vector3d t = m.T_parent_child.translation();
+  const Eigen::Quaterniond q(m.T_parent_child.linear());
+  return fmt::format(
+      "odom {} {} -> {} {:.6f} {:.6f} {:.6f} {:.6f} {:.6f} {:.6f} {:.6f} linear {:.4f} {:.4f} {:.4f} "
+      "angular {:.4f} {:.4f} {:.4f}",
+      stampText(m.stamp_ns), m.frame_id, m.child_frame_id, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w(),
+      m.linear.x(), m.linear.y(), m.linear.z(), m.angular.x(), m.angular.y(), m.angular.z());
 }
 
 std::string describe(const HealthMessage& m) {

@@ -222,6 +222,20 @@ void Publisher::onFrame(const FrameResult& result, const alg::TsdfMap& map, cons
       transforms.push_back({stamp, params_.odom_frame_id, moving, result.T_world_odom.inverse() * T_world_moving});
     }
     const TfWire tf(transforms);  // points into `transforms`
+    // nav_msgs/Odometry of the same chain's last link (odom -> base, or
+    // map -> base without odom), with the velocity since the last frame.
+    const TransformMessage& link = transforms.back();
+    OdometryMessage odom{stamp, link.frame_id, link.child_frame_id, link.T_parent_child, {}, {}};
+    if (last_odom_ && stamp > last_odom_->stamp_ns && last_odom_->frame_id == link.frame_id) {
+      const double dt = static_cast<double>(stamp - last_odom_->stamp_ns) * 1e-9;
+      const Eigen::Isometry3d step = last_odom_->T_parent_child.inverse() * link.T_parent_child;
+      odom.linear = step.translation() / dt;
+      const Eigen::AngleAxisd turn(step.linear());
+      odom.angular = turn.axis() * turn.angle() / dt;
+    }
+    last_odom_ = odom;
+    const OdometryWire odom_wire(odom);
+    if (const Status so = writers_[static_cast<size_t>(Topic::kOdom)].write(&odom_wire.wire); !so) recordError(so);
     if (const Status st = writers_[static_cast<size_t>(Topic::kTf)].write(&tf.wire); st) {
       ++transforms_;
     } else {

@@ -2,6 +2,7 @@
 // conversion to and from the idlc-generated wire structs.
 //
 //   rt/<prefix>/pose        geometry_msgs/PoseStamped  reliable, volatile, keep last 10
+//   rt/<prefix>/odom        nav_msgs/Odometry          reliable, volatile, keep last 10
 //   rt/<prefix>/trajectory  nav_msgs/Path              reliable, transient local, keep last 1
 //   rt/<prefix>/map         visualization_msgs/MarkerArray  reliable, keep all (no update replaced
 //                           before delivery), transient local with the newest 1;
@@ -28,13 +29,13 @@
 
 namespace hxmap::rt::dds {
 
-enum class Topic { kPose, kTrajectory, kMap, kMapChunks, kHealth, kTf, kTfStatic };
-inline constexpr Topic kAllTopics[] = {Topic::kPose,   Topic::kTrajectory, Topic::kMap,     Topic::kMapChunks,
-                                       Topic::kHealth, Topic::kTf,         Topic::kTfStatic};
+enum class Topic { kPose, kOdom, kTrajectory, kMap, kMapChunks, kHealth, kTf, kTfStatic };
+inline constexpr Topic kAllTopics[] = {Topic::kPose,      Topic::kOdom,   Topic::kTrajectory, Topic::kMap,
+                                       Topic::kMapChunks, Topic::kHealth, Topic::kTf,         Topic::kTfStatic};
 
 /// "rt/<prefix>/pose" and so on; TF is ROS 2's one "rt/tf" whatever the prefix.
 std::string topicName(Topic topic, const std::string& prefix);
-/// Topic by its short name ("pose", "trajectory", "map", "map_chunks", "health", "tf", "tf_static").
+/// Topic by its short name ("pose", "odom", "trajectory", "map", "map_chunks", "health", "tf", "tf_static").
 Expected<Topic> topicFromString(const std::string& name);
 const char* topicShortName(Topic topic);
 TopicQos topicQos(Topic topic);
@@ -51,6 +52,16 @@ struct TransformMessage {
   int64_t stamp_ns = 0;
   std::string frame_id, child_frame_id;
   Eigen::Isometry3d T_parent_child = Eigen::Isometry3d::Identity();
+};
+
+/// nav_msgs/Odometry: `child_frame_id`'s pose in `frame_id` and its
+/// velocity in `child_frame_id` (covariances are not estimated: sent as 0).
+struct OdometryMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id, child_frame_id;
+  Eigen::Isometry3d T_parent_child = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d linear = Eigen::Vector3d::Zero();   ///< m/s
+  Eigen::Vector3d angular = Eigen::Vector3d::Zero();  ///< rad/s
 };
 
 struct PathMessage {
@@ -107,6 +118,10 @@ struct PoseWire {
   explicit PoseWire(const PoseMessage& m);
   geometry_msgs_msg_dds__PoseStamped_ wire{};
 };
+struct OdometryWire {
+  explicit OdometryWire(const OdometryMessage& m);
+  nav_msgs_msg_dds__Odometry_ wire{};
+};
 struct PathWire {
   explicit PathWire(const PathMessage& m);
   std::vector<geometry_msgs_msg_dds__PoseStamped_> poses;
@@ -137,6 +152,7 @@ struct HealthWire {
 // per vertex, an index out of range) is an Error naming what is wrong.
 PoseMessage fromWire(const geometry_msgs_msg_dds__PoseStamped_& w);
 PathMessage fromWire(const nav_msgs_msg_dds__Path_& w);
+OdometryMessage fromWire(const nav_msgs_msg_dds__Odometry_& w);
 Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w);
 /// A marker whose colors are neither none nor one per point, or a triangle
 /// list whose points are not a multiple of 3, is an Error.
@@ -147,6 +163,7 @@ std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w);
 /// One line of text per message, as `hxmap echo` prints them.
 std::string describe(const PoseMessage& m);
 std::string describe(const PathMessage& m);
+std::string describe(const OdometryMessage& m);
 std::string describe(const MapChunkMessage& m);
 std::string describe(const std::vector<MarkerMessage>& markers);
 std::string describe(const HealthMessage& m);

@@ -30,8 +30,9 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
-#include <string>
 #include <mutex>
+#include <optional>
+#include <string>
 #include <thread>
 #include <unordered_map>
 #include <vector>
@@ -149,7 +150,9 @@ class Publisher {
 
   // Calling thread.
   uint64_t map_revision_ = 0;
-  std::unordered_map<uint64_t, alg::RegionKey> sent_regions_;  ///< regions handed to hx-publish, still in the map
+  std::unordered_map<uint64_t, alg::RegionKey> sent_regions_;
+  std::optional<OdometryMessage>
+      last_odom_;  ///< the previous frame's, for the velocity  ///< regions handed to hx-publish, still in the map
   int64_t last_map_ns_ = 0, last_path_ns_ = 0, last_health_ns_ = 0;
   uint32_t flush_count_ = 0;
   std::vector<double> frame_cost_ms_;
