@@ -95,6 +95,26 @@ void addSphere(alg::TsdfMap& map, const Eigen::Vector3f& center, float radius) {
   alg::applyPatch(map, patch);
 }
 
+// Free space observed around `center` (25 voxels a side): the surface
+// there is carved away.
+void carveAround(alg::TsdfMap& map, const Eigen::Vector3f& center) {
+  alg::TsdfPatch carve;
+  for (int z = -12; z <= 12; ++z) {
+    for (int y = -12; y <= 12; ++y) {
+      for (int x = -12; x <= 12; ++x) {
+        alg::TsdfPatch::Entry e;
+        e.voxel = map.voxelOf(center) + Eigen::Vector3i(x, y, z);
+        int index = 0;
+        if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
+        e.sdf_m = map.truncation();
+        e.weight = 1000.0f;
+        carve.entries.push_back(e);
+      }
+    }
+  }
+  alg::applyPatch(map, carve);
+}
+
 alg::TsdfParams tsdfParams() {
   alg::TsdfParams p;
   p.voxel_size_m = 0.02;
@@ -315,21 +335,7 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
 
   // The small sphere is carved away (free space observed there): its
   // regions lose their triangles and must say so.
-  alg::TsdfPatch carve;
-  for (int z = -12; z <= 12; ++z) {
-    for (int y = -12; y <= 12; ++y) {
-      for (int x = -12; x <= 12; ++x) {
-        alg::TsdfPatch::Entry e;
-        e.voxel = map.voxelOf(Eigen::Vector3f(0.9f, 0.1f, 0.4f)) + Eigen::Vector3i(x, y, z);
-        int index = 0;
-        if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
-        e.sdf_m = map.truncation();
-        e.weight = 1000.0f;
-        carve.entries.push_back(e);
-      }
-    }
-  }
-  alg::applyPatch(map, carve);
+  carveAround(map, {0.9f, 0.1f, 0.4f});
   (*pub)->flush(map, trajectory, RunCounters{});
   const alg::TriangleMesh carved = alg::extractMesh(map, alg::MeshParams{});
   ASSERT_LT(carved.triangles.size(), full.triangles.size());
@@ -405,21 +411,7 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   EXPECT_NEAR(received.totals().second, full.surfaceArea(), 1e-5 * full.surfaceArea());
 
   // The small sphere is carved away: the reader there sees its parts deleted.
-  alg::TsdfPatch carve;
-  for (int z = -12; z <= 12; ++z) {
-    for (int y = -12; y <= 12; ++y) {
-      for (int x = -12; x <= 12; ++x) {
-        alg::TsdfPatch::Entry e;
-        e.voxel = map.voxelOf(Eigen::Vector3f(0.9f, 0.1f, 0.4f)) + Eigen::Vector3i(x, y, z);
-        int index = 0;
-        if (map.blockOfVoxel(e.voxel, index) == nullptr) continue;
-        e.sdf_m = map.truncation();
-        e.weight = 1000.0f;
-        carve.entries.push_back(e);
-      }
-    }
-  }
-  alg::applyPatch(map, carve);
+  carveAround(map, {0.9f, 0.1f, 0.4f});
   (*pub)->flush(map, trajectory, RunCounters{});
   const alg::TriangleMesh carved = alg::extractMesh(map, alg::MeshParams{});
   ASSERT_LT(carved.triangles.size(), full.triangles.size());

@@ -75,6 +75,14 @@ class LoopClosureRun : public ::testing::Test {
       last = r;
     }
   };
+  static Run finish(const Frontend& fe, const Trajectory& truth, const Steps& steps) {
+    return {alg::computeAte(fe.trajectory(), truth).rmse_m,
+            fe.loopClosureCounters(),
+            fe.mesh({}),
+            steps.world,
+            steps.odom,
+            steps.last->T_world_odom};
+  }
   /// `late_frames` > 0: the loop closer runs apart from the frontend, as
   /// on its real-time thread, and each correction reaches the frontend
   /// that many frames after it was found (keyframes made meanwhile reach
@@ -92,12 +100,7 @@ class LoopClosureRun : public ::testing::Test {
     Steps steps;
     if (late_frames <= 0) {
       for (const auto& f : frames) steps.add(fe.process(f));
-      return {alg::computeAte(fe.trajectory(), truth).rmse_m,
-              fe.loopClosureCounters(),
-              fe.mesh({}),
-              steps.world,
-              steps.odom,
-              steps.last->T_world_odom};
+      return finish(fe, truth, steps);
     }
     std::unique_ptr<LoopCloser> closer = fe.detachLoopCloser();
     std::vector<std::pair<size_t, LoopCorrection>> in_flight;  // due frame, correction
@@ -115,12 +118,7 @@ class LoopClosureRun : public ::testing::Test {
     }
     for (auto& [due, c] : in_flight) fe.applyLoopCorrection(c);
     fe.attachLoopCloser(std::move(closer));
-    return {alg::computeAte(fe.trajectory(), truth).rmse_m,
-            fe.loopClosureCounters(),
-            fe.mesh({}),
-            steps.world,
-            steps.odom,
-            steps.last->T_world_odom};
+    return finish(fe, truth, steps);
   }
   static inline const alg::PinholeCamera cam_{525.0, 525.0, 319.5, 239.5, 640, 480, {0, 0, 0, 0, 0}};
   static inline Trajectory loop_truth_;

@@ -30,25 +30,34 @@ Seq view(const std::vector<T>& v) {
   return s;
 }
 
+// A rigid transform as ROS 2's Pose (position, orientation).
+geometry_msgs_msg_dds__Pose_ toPose(const Eigen::Isometry3d& T) {
+  const Eigen::Vector3d t = T.translation();
+  const Eigen::Quaterniond q(T.linear());
+  return {{t.x(), t.y(), t.z()}, {q.x(), q.y(), q.z(), q.w()}};
+}
+
 void fillPose(geometry_msgs_msg_dds__PoseStamped_& w, int64_t stamp_ns, const std::string& frame_id,
               const Eigen::Isometry3d& T_world_cam) {
   w.header.stamp = toTime(stamp_ns);
   w.header.frame_id = const_cast<char*>(frame_id.c_str());
-  const Eigen::Vector3d t = T_world_cam.translation();
-  const Eigen::Quaterniond q(T_world_cam.linear());
-  w.pose.position = {t.x(), t.y(), t.z()};
-  w.pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+  w.pose = toPose(T_world_cam);
+}
+
+// ROS 2's Pose as a rigid transform (a zero quaternion reads as identity).
+Eigen::Isometry3d fromPose(const geometry_msgs_msg_dds__Point_& p, const geometry_msgs_msg_dds__Quaternion_& o) {
+  Eigen::Quaterniond q(o.w, o.x, o.y, o.z);
+  if (q.norm() > 0) q.normalize();
+  else
+    q.setIdentity();
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = q.toRotationMatrix();
+  T.translation() = Eigen::Vector3d(p.x, p.y, p.z);
+  return T;
 }
 
 StampedPose readPose(const geometry_msgs_msg_dds__PoseStamped_& w) {
-  StampedPose p;
-  p.stamp_ns = fromTime(w.header.stamp);
-  const auto& o = w.pose.orientation;
-  Eigen::Quaterniond q(o.w, o.x, o.y, o.z);
-  if (q.norm() > 0) q.normalize();
-  p.T_world_cam.linear() = q.toRotationMatrix();
-  p.T_world_cam.translation() = Eigen::Vector3d(w.pose.position.x, w.pose.position.y, w.pose.position.z);
-  return p;
+  return {fromTime(w.header.stamp), fromPose(w.pose.position, w.pose.orientation)};
 }
 
 std::string str(const char* s) { return s != nullptr ? std::string(s) : std::string(); }
@@ -163,10 +172,9 @@ TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) 
     w.header.stamp = toTime(m.stamp_ns);
     w.header.frame_id = const_cast<char*>(m.frame_id.c_str());
     w.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
-    const Eigen::Vector3d t = m.T_parent_child.translation();
-    const Eigen::Quaterniond q(m.T_parent_child.linear());
-    w.transform.translation = {t.x(), t.y(), t.z()};
-    w.transform.rotation = {q.x(), q.y(), q.z(), q.w()};
+    const geometry_msgs_msg_dds__Pose_ pose = toPose(m.T_parent_child);
+    w.transform.translation = {pose.position.x, pose.position.y, pose.position.z};
+    w.transform.rotation = pose.orientation;
   }
   wire.transforms = view<dds_sequence_geometry_msgs_msg_dds__TransformStamped_>(transforms);
 }
@@ -175,10 +183,7 @@ OdometryWire::OdometryWire(const OdometryMessage& m) {
   wire.header.stamp = toTime(m.stamp_ns);
   wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
   wire.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
-  const Eigen::Vector3d t = m.T_parent_child.translation();
-  const Eigen::Quaterniond q(m.T_parent_child.linear());
-  wire.pose.pose.position = {t.x(), t.y(), t.z()};
-  wire.pose.pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+  wire.pose.pose = toPose(m.T_parent_child);
   wire.twist.twist.linear = {m.linear.x(), m.linear.y(), m.linear.z()};
   wire.twist.twist.angular = {m.angular.x(), m.angular.y(), m.angular.z()};
 }
@@ -241,11 +246,7 @@ OdometryMessage fromWire(const nav_msgs_msg_dds__Odometry_& w) {
   m.stamp_ns = fromTime(w.header.stamp);
   m.frame_id = str(w.header.frame_id);
   m.child_frame_id = str(w.child_frame_id);
-  const auto& p = w.pose.pose;
-  Eigen::Quaterniond q(p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z);
-  if (q.norm() > 0) q.normalize();
-  m.T_parent_child.linear() = q.toRotationMatrix();
-  m.T_parent_child.translation() = Eigen::Vector3d(p.position.x, p.position.y, p.position.z);
+  m.T_parent_child = fromPose(w.pose.pose.position, w.pose.pose.orientation);
   m.linear = {w.twist.twist.linear.x, w.twist.twist.linear.y, w.twist.twist.linear.z};
   m.angular = {w.twist.twist.angular.x, w.twist.twist.angular.y, w.twist.twist.angular.z};
   return m;
@@ -337,11 +338,8 @@ std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w) {
     m.stamp_ns = fromTime(t.header.stamp);
     m.frame_id = str(t.header.frame_id);
     m.child_frame_id = str(t.child_frame_id);
-    const auto& r = t.transform.rotation;
-    Eigen::Quaterniond q(r.w, r.x, r.y, r.z);
-    m.T_parent_child.linear() = q.normalized().toRotationMatrix();
-    m.T_parent_child.translation() = Eigen::Vector3d(t.transform.translation.x, t.transform.translation.y,
-                                                     t.transform.translation.z);
+    const auto& x = t.transform.translation;
+    m.T_parent_child = fromPose({x.x, x.y, x.z}, t.transform.rotation);
     out.push_back(std::move(m));
   }
   return out;
