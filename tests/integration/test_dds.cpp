@@ -205,6 +205,20 @@ size_t drainMarkers(Reader& reader, ReceivedMarkers& received) {
   return n ? *n : 0;
 }
 
+// Takes markers until they make `triangles` triangles (20 s at most).
+::testing::AssertionResult markersReach(Reader& reader, ReceivedMarkers& received, size_t triangles) {
+  if (waitFor(
+          [&] {
+            drainMarkers(reader, received);
+            return received.totals().first == triangles;
+          },
+          20)) {
+    return ::testing::AssertionSuccess();
+  }
+  return ::testing::AssertionFailure() << received.totals().first << " of " << triangles << " triangles in "
+                                       << received.samples << " MarkerArrays";
+}
+
 TEST(DdsMessages, WireRoundTripKeepsValues) {
   const PoseMessage pose{1'305'031'102'175'304'000, "map", poseAt(7)};
   const PoseMessage back = fromWire(PoseWire(pose).wire);
@@ -397,15 +411,7 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
   (*pub)->flush(map, trajectory, RunCounters{});
   ReceivedMarkers received;
-  ASSERT_TRUE(waitFor(
-      [&] {
-        drainMarkers(*reader, received);
-        return received.totals().first == full.triangles.size();
-      },
-      20))
-      << received.totals().first << " of " << full.triangles.size() << " triangles; resends "
-      << (*pub)->stats().map_resends << ", arrays " << (*pub)->stats().marker_arrays << ", received "
-      << received.samples;
+  ASSERT_TRUE(markersReach(*reader, received, full.triangles.size()));
   EXPECT_EQ(received.bad, 0u);
   EXPECT_EQ(received.colorless, 0u);
   EXPECT_NEAR(received.totals().second, full.surfaceArea(), 1e-5 * full.surfaceArea());
@@ -415,13 +421,7 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   (*pub)->flush(map, trajectory, RunCounters{});
   const alg::TriangleMesh carved = alg::extractMesh(map, alg::MeshParams{});
   ASSERT_LT(carved.triangles.size(), full.triangles.size());
-  ASSERT_TRUE(waitFor(
-      [&] {
-        drainMarkers(*reader, received);
-        return received.totals().first == carved.triangles.size();
-      },
-      20))
-      << received.totals().first << " vs " << carved.triangles.size();
+  ASSERT_TRUE(markersReach(*reader, received, carved.triangles.size()));
 
   // A second late joiner gets the carved map, nothing of what was deleted.
   auto reader2 =
@@ -430,13 +430,7 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 2; }, 20));
   (*pub)->flush(map, trajectory, RunCounters{});
   ReceivedMarkers late;
-  ASSERT_TRUE(waitFor(
-      [&] {
-        drainMarkers(*reader2, late);
-        return late.totals().first == carved.triangles.size();
-      },
-      20))
-      << late.totals().first << " vs " << carved.triangles.size();
+  ASSERT_TRUE(markersReach(*reader2, late, carved.triangles.size()));
   EXPECT_NEAR(late.totals().second, carved.surfaceArea(), 1e-5 * carved.surfaceArea());
   EXPECT_EQ(late.markers.size(), received.markers.size());
   EXPECT_EQ((*pub)->stats().map_resends, 2u);

@@ -30,6 +30,11 @@ Seq view(const std::vector<T>& v) {
   return s;
 }
 
+// Header strings point into `frame_id`, which must outlive the wire struct.
+std_msgs_msg_dds__Header_ toHeader(int64_t stamp_ns, const std::string& frame_id) {
+  return {toTime(stamp_ns), const_cast<char*>(frame_id.c_str())};
+}
+
 // A rigid transform as ROS 2's Pose (position, orientation).
 geometry_msgs_msg_dds__Pose_ toPose(const Eigen::Isometry3d& T) {
   const Eigen::Vector3d t = T.translation();
@@ -39,8 +44,7 @@ geometry_msgs_msg_dds__Pose_ toPose(const Eigen::Isometry3d& T) {
 
 void fillPose(geometry_msgs_msg_dds__PoseStamped_& w, int64_t stamp_ns, const std::string& frame_id,
               const Eigen::Isometry3d& T_world_cam) {
-  w.header.stamp = toTime(stamp_ns);
-  w.header.frame_id = const_cast<char*>(frame_id.c_str());
+  w.header = toHeader(stamp_ns, frame_id);
   w.pose = toPose(T_world_cam);
 }
 
@@ -142,8 +146,7 @@ MarkerArrayWire::MarkerArrayWire(const std::vector<MarkerMessage>& in)
   for (size_t i = 0; i < in.size(); ++i) {
     const MarkerMessage& m = in[i];
     visualization_msgs_msg_dds__Marker_& w = markers[i];
-    w.header.stamp = toTime(m.stamp_ns);
-    w.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+    w.header = toHeader(m.stamp_ns, m.frame_id);
     w.ns = const_cast<char*>(m.ns.c_str());
     w.id = m.id;
     w.type = m.type;
@@ -169,8 +172,7 @@ TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) 
   for (size_t i = 0; i < in.size(); ++i) {
     const TransformMessage& m = in[i];
     geometry_msgs_msg_dds__TransformStamped_& w = transforms[i];
-    w.header.stamp = toTime(m.stamp_ns);
-    w.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+    w.header = toHeader(m.stamp_ns, m.frame_id);
     w.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
     const geometry_msgs_msg_dds__Pose_ pose = toPose(m.T_parent_child);
     w.transform.translation = {pose.position.x, pose.position.y, pose.position.z};
@@ -180,8 +182,7 @@ TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) 
 }
 
 OdometryWire::OdometryWire(const OdometryMessage& m) {
-  wire.header.stamp = toTime(m.stamp_ns);
-  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.header = toHeader(m.stamp_ns, m.frame_id);
   wire.child_frame_id = const_cast<char*>(m.child_frame_id.c_str());
   wire.pose.pose = toPose(m.T_parent_child);
   wire.twist.twist.linear = {m.linear.x(), m.linear.y(), m.linear.z()};
@@ -190,14 +191,12 @@ OdometryWire::OdometryWire(const OdometryMessage& m) {
 
 PathWire::PathWire(const PathMessage& m) : poses(m.poses.size()) {
   for (size_t i = 0; i < m.poses.size(); ++i) fillPose(poses[i], m.poses[i].stamp_ns, m.frame_id, m.poses[i].T_world_cam);
-  wire.header.stamp = toTime(m.stamp_ns);
-  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.header = toHeader(m.stamp_ns, m.frame_id);
   wire.poses = view<dds_sequence_geometry_msgs_msg_dds__PoseStamped_>(poses);
 }
 
 MapChunkWire::MapChunkWire(const MapChunkMessage& m) {
-  wire.header.stamp = toTime(m.stamp_ns);
-  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.header = toHeader(m.stamp_ns, m.frame_id);
   wire.region_x = m.region.x();
   wire.region_y = m.region.y();
   wire.region_z = m.region.z();
@@ -211,8 +210,7 @@ MapChunkWire::MapChunkWire(const MapChunkMessage& m) {
 }
 
 HealthWire::HealthWire(const HealthMessage& m) {
-  wire.header.stamp = toTime(m.stamp_ns);
-  wire.header.frame_id = const_cast<char*>(m.frame_id.c_str());
+  wire.header = toHeader(m.stamp_ns, m.frame_id);
   wire.frames = m.frames;
   wire.frames_dropped = m.frames_dropped;
   wire.frames_lost = m.frames_lost;
