@@ -95,6 +95,22 @@ void addSphere(alg::TsdfMap& map, const Eigen::Vector3f& center, float radius) {
   alg::applyPatch(map, patch);
 }
 
+alg::TsdfParams tsdfParams() {
+  alg::TsdfParams p;
+  p.voxel_size_m = 0.02;
+  p.truncation_m = 0.08;
+  return p;
+}
+
+// The map the map tests publish: a large sphere across many regions and a
+// small one (carved away or left out later) apart from it.
+alg::TsdfMap twoSpheres() {
+  alg::TsdfMap map(tsdfParams());
+  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.23f);
+  addSphere(map, {0.9f, 0.1f, 0.4f}, 0.12f);
+  return map;
+}
+
 // Free space observed around `center` (25 voxels a side): the surface
 // there is carved away.
 void carveAround(alg::TsdfMap& map, const Eigen::Vector3f& center) {
@@ -113,13 +129,6 @@ void carveAround(alg::TsdfMap& map, const Eigen::Vector3f& center) {
     }
   }
   alg::applyPatch(map, carve);
-}
-
-alg::TsdfParams tsdfParams() {
-  alg::TsdfParams p;
-  p.voxel_size_m = 0.02;
-  p.truncation_m = 0.08;
-  return p;
 }
 
 // The map as a reader holds it: newest revision of every (region, part).
@@ -320,9 +329,7 @@ TEST(DdsLoopback, LateJoinerReceivesTheWholeMapAndItsUpdates) {
   const std::string pre = prefix("map");
   auto pub = Publisher::start(params(pre));
   ASSERT_TRUE(pub) << pub.message();
-  alg::TsdfMap map(tsdfParams());
-  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.23f);
-  addSphere(map, {0.9f, 0.1f, 0.4f}, 0.12f);
+  alg::TsdfMap map = twoSpheres();
   const Trajectory trajectory{{1, poseAt(0)}, {2, poseAt(1)}};
   (*pub)->flush(map, trajectory, RunCounters{});
   const alg::TriangleMesh full = alg::extractMesh(map, alg::MeshParams{});
@@ -391,9 +398,7 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   const std::string pre = prefix("markers");
   auto pub = Publisher::start(params(pre));
   ASSERT_TRUE(pub) << pub.message();
-  alg::TsdfMap map(tsdfParams());
-  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.23f);
-  addSphere(map, {0.9f, 0.1f, 0.4f}, 0.12f);
+  alg::TsdfMap map = twoSpheres();
   const Trajectory trajectory{{1, poseAt(0)}, {2, poseAt(1)}};
   (*pub)->flush(map, trajectory, RunCounters{});
   const alg::TriangleMesh full = alg::extractMesh(map, alg::MeshParams{});
@@ -451,9 +456,7 @@ TEST(DdsLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {
                                topicQos(Topic::kMapChunks));
   ASSERT_TRUE(reader && chunks);
   ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
-  alg::TsdfMap before(tsdfParams());
-  addSphere(before, {0.05f, -0.07f, 0.11f}, 0.23f);
-  addSphere(before, {0.9f, 0.1f, 0.4f}, 0.12f);
+  const alg::TsdfMap before = twoSpheres();
   const Trajectory trajectory{{1, poseAt(0)}};
   (*pub)->flush(before, trajectory, RunCounters{});
   alg::TsdfMap after(tsdfParams());  // the first sphere only
