@@ -60,7 +60,8 @@ std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
       "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} "
       "MiB, "
       "{:.1f} KiB/s over {:.1f} s), work items dropped {}, write errors {}\n"
-      "  map as MarkerArray: {} samples, {:.2f} MiB, {} whole-map resends to readers that joined; "
+      "  map as MarkerArray: {} samples, {:.2f} MiB, {} whole-map resends to readers that joined; as PointCloud2: {} "
+      "samples, {:.2f} MiB; "
       "final data not acknowledged by every reliable reader in time: {} times\n"
       "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} ms in "
       "all); "
@@ -68,8 +69,9 @@ std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
       s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks,
       static_cast<double>(s.chunk_bytes) / (1 << 20),
       wall_s > 0 ? static_cast<double>(s.chunk_bytes) / 1024.0 / wall_s : 0.0, wall_s, s.items_dropped, s.write_errors,
-      s.marker_arrays, static_cast<double>(s.marker_bytes) / (1 << 20), s.map_resends, s.ack_timeouts,
-      s.frame_cost_p50_ms, s.frame_cost_max_ms, s.snapshot_ms_total, s.mesh_ms_total);
+      s.marker_arrays, static_cast<double>(s.marker_bytes) / (1 << 20), s.map_resends, s.clouds,
+      static_cast<double>(s.cloud_bytes) / (1 << 20), s.ack_timeouts, s.frame_cost_p50_ms, s.frame_cost_max_ms,
+      s.snapshot_ms_total, s.mesh_ms_total);
 }
 
 int echoCommand(const EchoOptions& o) {
@@ -129,6 +131,16 @@ int echoCommand(const EchoOptions& o) {
           return;
         }
         line = dds::describe(*markers);
+        break;
+      }
+      case dds::Topic::kMapCloud: {
+        const auto cloud = dds::fromWire(*static_cast<const sensor_msgs_msg_dds__PointCloud2_*>(sample));
+        if (!cloud) {
+          spdlog::warn("{}: {}", name, cloud.message());
+          ++bad;
+          return;
+        }
+        line = dds::describe(*cloud);
         break;
       }
       case dds::Topic::kMapChunks: {

@@ -108,7 +108,8 @@ int main(int argc, char** argv) {
 
   hxmap::rt::EchoOptions echo;
   auto* echo_cmd = app.add_subcommand("echo", "print what hxmap publishes on a DDS topic, one line per message");
-  echo_cmd->add_option("topic", echo.topic, "pose, odom, trajectory, map, map_chunks, health, tf or tf_static")
+  echo_cmd
+      ->add_option("topic", echo.topic, "pose, odom, trajectory, map, map_chunks, map_cloud, health, tf or tf_static")
       ->required();
   echo_cmd->add_option("--config", echo.config, "YAML configuration (dds section: domain, topic prefix)");
   echo_cmd->add_option("--count", echo.count, "stop after this many messages (default: until Ctrl-C)");

@@ -318,6 +318,12 @@ int main(int argc, char** argv) {
             std::max<double>(1.0, static_cast<double>(ps2.map_resends - ps.map_resends)),
         ps.frame_cost_p50_ms, ps.frame_cost_max_ms, ps.snapshot_ms_total / static_cast<double>(frames.size()),
         ps.mesh_ms_total / static_cast<double>(frames.size()));
+    fmt::print(
+        "  map as PointCloud2 (the whole map in each update): {} samples, {:.1f} KiB in all = {:.1f} KiB/s, "
+        "{:.1f} KiB per sample, the last {} points\n",
+        ps.clouds, static_cast<double>(ps.cloud_bytes) / 1024, static_cast<double>(ps.cloud_bytes) / 1024 / wall_s,
+        static_cast<double>(ps.cloud_bytes) / 1024 / std::max<double>(1.0, static_cast<double>(ps.clouds)),
+        ps.last_cloud_points);
   }
   return 0;
 }

@@ -442,6 +442,91 @@ TEST(DdsLoopback, ALateJoinerOfTheMarkerMapGetsTheWholeMapAndTheReadersThereFoll
   EXPECT_EQ((*pub)->stats().write_errors, 0u);
 }
 
+// The map as a PointCloud2 (RViz's PointCloud2 display, PCL): every
+// region part's vertices with their colors, the whole map in each sample.
+TEST(DdsLoopback, ALateJoinerOfTheCloudGetsEveryRegionsSurfacePoints) {
+  const std::string pre = prefix("cloud");
+  const PublisherParams p = params(pre);
+  auto pub = Publisher::start(p);
+  ASSERT_TRUE(pub) << pub.message();
+  alg::TsdfMap map = twoSpheres();
+  const Trajectory trajectory{{1, poseAt(0)}};
+  auto expectedPoints = [&] {
+    size_t n = 0;
+    for (const auto& r : alg::changedRegions(map, 0, p.region_blocks)) {
+      const alg::TriangleMesh mesh = alg::regionMesh(map, r, p.region_blocks, p.mesh);
+      for (const auto& part : alg::splitMesh(mesh, static_cast<size_t>(p.max_triangles_per_chunk))) {
+        n += part.vertices.size();
+      }
+    }
+    return n;
+  };
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const size_t full = expectedPoints();
+  ASSERT_GT(full, 1000u);
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader = Reader::create(*participant, topicType(Topic::kMapCloud), topicName(Topic::kMapCloud, pre),
+                               topicQos(Topic::kMapCloud));
+  ASSERT_TRUE(reader) << reader.message();
+  PointCloudMessage cloud;
+  size_t bad = 0;
+  auto drain = [&] {
+    (void)reader->take([&](const void* s, const dds_sample_info_t&) {
+      auto c = fromWire(*static_cast<const sensor_msgs_msg_dds__PointCloud2_*>(s));
+      if (c)
+        cloud = std::move(*c);
+      else
+        ++bad;
+    });
+  };
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drain();
+        return cloud.points.size() == full;
+      },
+      20))
+      << cloud.points.size() << " of " << full;
+  EXPECT_EQ(bad, 0u);
+  EXPECT_EQ(cloud.frame_id, "map");
+  ASSERT_EQ(cloud.colors.size(), cloud.points.size());
+  // Every point lies on one of the two spheres (within a voxel).
+  for (const auto& x : cloud.points) {
+    const float d = std::min(std::abs((x - Eigen::Vector3f(0.05f, -0.07f, 0.11f)).norm() - 0.23f),
+                             std::abs((x - Eigen::Vector3f(0.9f, 0.1f, 0.4f)).norm() - 0.12f));
+    ASSERT_LT(d, 0.02f) << x.transpose();
+  }
+  // After a carve the next sample is the smaller map.
+  carveAround(map, {0.9f, 0.1f, 0.4f});
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const size_t carved = expectedPoints();
+  ASSERT_LT(carved, full);
+  ASSERT_TRUE(waitFor(
+      [&] {
+        drain();
+        return cloud.points.size() == carved;
+      },
+      20))
+      << cloud.points.size() << " of " << carved;
+  EXPECT_EQ((*pub)->stats().clouds, 2u);
+}
+
+TEST(DdsMessages, APointCloudWhoseSizesDisagreeIsAnError) {
+  PointCloudMessage m;
+  m.frame_id = "map";
+  m.points = {{1, 2, 3}, {4, 5, 6}};
+  m.colors = {{{10, 20, 30}}, {{40, 50, 60}}};
+  PointCloudWire wire(m);
+  auto back = fromWire(wire.wire);
+  ASSERT_TRUE(back) << back.message();
+  EXPECT_EQ(back->points[1], Eigen::Vector3f(4, 5, 6));
+  EXPECT_EQ(back->colors[1][2], 60);
+  wire.wire.width = 3;  // claims a point the data does not hold
+  auto bad = fromWire(wire.wire);
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.message().find("data bytes"), std::string::npos) << bad.message();
+}
+
 // A loop closure replaces the map with one fused anew from the keyframes;
 // regions the new map does not hold must leave the readers' maps too.
 TEST(DdsLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {

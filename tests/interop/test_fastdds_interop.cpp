@@ -3,7 +3,7 @@
 // definitions (tests/interop/ros2_msgs, through msg2idl.py: nothing of
 // hxmap's own IDL or code), receives what a real `hxmap run --realtime
 // --dds` publishes over loopback: poses with reliable QoS, odometry, /tf, the map as
-// a MarkerArray (joining late) and health; the values are checked against
+// a MarkerArray (joining late) and as a PointCloud2, and health; the values are checked against
 // the run's trajectory.txt and mesh.ply.
 #include <gtest/gtest.h>
 
@@ -14,6 +14,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -145,15 +146,18 @@ std::map<int64_t, Pose> readTrajectory(const std::string& path) {
   return out;
 }
 
-// Faces in a binary or ASCII PLY header ("element face N").
-size_t plyFaces(const std::string& path) {
+// An element's count in a binary or ASCII PLY header ("element face N").
+size_t plyCount(const std::string& path, const std::string& element) {
   std::ifstream in(path, std::ios::binary);
   std::string line;
+  const std::string key = "element " + element + " ";
   while (std::getline(in, line) && line.rfind("end_header", 0) != 0) {
-    if (line.rfind("element face ", 0) == 0) return std::stoul(line.substr(13));
+    if (line.rfind(key, 0) == 0) return std::stoul(line.substr(key.size()));
   }
   return 0;
 }
+size_t plyFaces(const std::string& path) { return plyCount(path, "face"); }
+size_t plyVertices(const std::string& path) { return plyCount(path, "vertex"); }
 
 double poseError(const Pose& a, const double t[3], const double q[4]) {
   double dt = 0;
@@ -253,6 +257,22 @@ TEST(FastDdsInterop, AFastDdsSubscriberReceivesPoseTfMapAndHealthFromARealtimeRu
   pid_t pid = -1;
   ASSERT_EQ(posix_spawn(&pid, HXMAP_BIN, nullptr, nullptr, argv.data(), environ), 0);
   std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  // The map as a point cloud: the newest sample is the whole map.
+  size_t cloud_points = 0, bad_clouds = 0;
+  Listener<sensor_msgs::msg::dds_::PointCloud2_> on_cloud([&](const auto& s) {
+    std::lock_guard lock(m);
+    bool ok = s.point_step() == 16 && s.fields().size() == 4 && s.fields()[0].name() == "x" &&
+              s.fields()[3].name() == "rgb" && s.data().size() == static_cast<size_t>(s.width()) * s.point_step();
+    for (size_t i = 0; ok && i < s.width(); ++i) {
+      float x[3];
+      std::memcpy(x, s.data().data() + 16 * i, 12);
+      ok = std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]);
+    }
+    if (!ok) ++bad_clouds;
+    cloud_points = s.width();
+  });
+  ASSERT_TRUE((fast.subscribe<sensor_msgs::msg::dds_::PointCloud2_PubSubType>("rt/" + prefix + "/map_cloud", true, 1,
+                                                                              &on_cloud)));
   ASSERT_TRUE((fast.subscribe<visualization_msgs::msg::dds_::MarkerArray_PubSubType>("rt/" + prefix + "/map", false, 10,
                                                                                      &on_map)));
   int status = 0;
@@ -292,6 +312,12 @@ TEST(FastDdsInterop, AFastDdsSubscriberReceivesPoseTfMapAndHealthFromARealtimeRu
   EXPECT_GT(faces, 10000u);
   EXPECT_EQ(triangles, faces) << marker_arrays << " MarkerArrays received";
   EXPECT_EQ(bad_markers, 0u);
+  // The cloud holds the region meshes' vertices: the mesh's, and those
+  // repeated where regions meet.
+  const size_t vertices = plyVertices(out + "/mesh.ply");
+  EXPECT_GE(cloud_points, vertices);
+  EXPECT_LT(cloud_points, vertices * 3 / 2);
+  EXPECT_EQ(bad_clouds, 0u);
 }
 
 }  // namespace

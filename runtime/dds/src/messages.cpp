@@ -1,5 +1,7 @@
 #include "hxmap/dds/messages.hpp"
 
+#include <cstring>
+
 #include <fmt/format.h>
 
 namespace hxmap::rt::dds {
@@ -85,6 +87,8 @@ const char* topicShortName(Topic topic) {
     case Topic::kMap: return "map";
     case Topic::kMapChunks:
       return "map_chunks";
+    case Topic::kMapCloud:
+      return "map_cloud";
     case Topic::kHealth: return "health";
     case Topic::kTf: return "tf";
     case Topic::kTfStatic:
@@ -97,8 +101,8 @@ Expected<Topic> topicFromString(const std::string& name) {
   for (Topic t : kAllTopics) {
     if (name == topicShortName(t)) return t;
   }
-  return Error{
-      fmt::format("unknown topic '{}' (known: pose, odom, trajectory, map, map_chunks, health, tf, tf_static)", name)};
+  return Error{fmt::format(
+      "unknown topic '{}' (known: pose, odom, trajectory, map, map_chunks, map_cloud, health, tf, tf_static)", name)};
 }
 
 TopicQos topicQos(Topic topic) {
@@ -113,6 +117,8 @@ TopicQos topicQos(Topic topic) {
       return {true, true, 1, true, 2.0};
     case Topic::kMapChunks:
       return {true, true, 1};
+    case Topic::kMapCloud:
+      return {true, true, 1};  // a state: the newest sample is the whole map
     case Topic::kHealth: return {true, true, 1};
     case Topic::kTf: return {true, false, 100};  // as tf2_ros's TransformBroadcaster
     case Topic::kTfStatic:
@@ -131,6 +137,8 @@ const dds_topic_descriptor_t* topicType(Topic topic) {
       return &visualization_msgs_msg_dds__MarkerArray__desc;
     case Topic::kMapChunks:
       return &hxmap_msgs_msg_dds__MapChunk__desc;
+    case Topic::kMapCloud:
+      return &sensor_msgs_msg_dds__PointCloud2__desc;
     case Topic::kHealth: return &hxmap_msgs_msg_dds__Health__desc;
     case Topic::kTf:
     case Topic::kTfStatic:
@@ -166,6 +174,36 @@ MarkerArrayWire::MarkerArrayWire(const std::vector<MarkerMessage>& in)
     w.texture.header.frame_id = w.texture.format = w.mesh_file.filename = empty;
   }
   wire.markers = view<dds_sequence_visualization_msgs_msg_dds__Marker_>(markers);
+}
+
+namespace {
+constexpr uint8_t kFloat32 = 7;  // sensor_msgs/PointField::FLOAT32
+char* fieldName(int i) {
+  static char names[4][4] = {"x", "y", "z", "rgb"};
+  return names[i];
+}
+}  // namespace
+
+PointCloudWire::PointCloudWire(const PointCloudMessage& m) : fields(4), data(m.points.size() * 16) {
+  for (int i = 0; i < 4; ++i)
+    fields[static_cast<size_t>(i)] = {fieldName(i), static_cast<uint32_t>(4 * i), kFloat32, 1};
+  for (size_t i = 0; i < m.points.size(); ++i) {
+    uint8_t* p = data.data() + 16 * i;
+    std::memcpy(p, m.points[i].data(), 12);
+    const std::array<uint8_t, 3> c =
+        m.colors.size() == m.points.size() ? m.colors[i] : std::array<uint8_t, 3>{255, 255, 255};
+    const uint32_t rgb = static_cast<uint32_t>(c[0]) << 16 | static_cast<uint32_t>(c[1]) << 8 | c[2];
+    std::memcpy(p + 12, &rgb, 4);  // little-endian, as is_bigendian says
+  }
+  wire.header = toHeader(m.stamp_ns, m.frame_id);
+  wire.height = 1;
+  wire.width = static_cast<uint32_t>(m.points.size());
+  wire.fields = view<dds_sequence_sensor_msgs_msg_dds__PointField_>(fields);
+  wire.is_bigendian = false;
+  wire.point_step = 16;
+  wire.row_step = 16 * wire.width;
+  wire.data = view<dds_sequence_uint8>(data);
+  wire.is_dense = true;
 }
 
 TfWire::TfWire(const std::vector<TransformMessage>& in) : transforms(in.size()) {
@@ -309,6 +347,45 @@ Expected<std::vector<MarkerMessage>> fromWire(const visualization_msgs_msg_dds__
   return out;
 }
 
+Expected<PointCloudMessage> fromWire(const sensor_msgs_msg_dds__PointCloud2_& w) {
+  PointCloudMessage m;
+  m.stamp_ns = fromTime(w.header.stamp);
+  m.frame_id = str(w.header.frame_id);
+  int offset[4] = {-1, -1, -1, -1};  // x, y, z, rgb
+  for (uint32_t i = 0; i < w.fields._length; ++i) {
+    const auto& f = w.fields._buffer[i];
+    const std::string name = str(f.name);
+    for (int k = 0; k < 4; ++k) {
+      if (name == fieldName(k) && f.datatype == kFloat32 && f.count == 1) offset[k] = static_cast<int>(f.offset);
+    }
+  }
+  if (offset[0] < 0 || offset[1] < 0 || offset[2] < 0) return Error{"point cloud without float32 x, y and z fields"};
+  if (w.is_bigendian) return Error{"big-endian point cloud"};
+  const uint64_t n = static_cast<uint64_t>(w.width) * w.height;
+  for (int k = 0; k < 4; ++k) {
+    if (offset[k] >= 0 && static_cast<uint64_t>(offset[k]) + 4 > w.point_step) {
+      return Error{
+          fmt::format("point cloud field {} at {} beyond the point step {}", fieldName(k), offset[k], w.point_step)};
+    }
+  }
+  if (w.row_step != static_cast<uint64_t>(w.width) * w.point_step || w.data._length != n * w.point_step) {
+    return Error{fmt::format("point cloud of {}x{} points, step {}, row step {}: {} data bytes", w.width, w.height,
+                             w.point_step, w.row_step, w.data._length)};
+  }
+  m.points.resize(n);
+  if (offset[3] >= 0) m.colors.resize(n);
+  for (uint64_t i = 0; i < n; ++i) {
+    const uint8_t* p = w.data._buffer + i * w.point_step;
+    for (int k = 0; k < 3; ++k) std::memcpy(&m.points[i][k], p + offset[k], 4);
+    if (offset[3] >= 0) {
+      uint32_t rgb = 0;
+      std::memcpy(&rgb, p + offset[3], 4);
+      m.colors[i] = {static_cast<uint8_t>(rgb >> 16), static_cast<uint8_t>(rgb >> 8), static_cast<uint8_t>(rgb)};
+    }
+  }
+  return m;
+}
+
 HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w) {
   HealthMessage m;
   m.stamp_ns = fromTime(w.header.stamp);
@@ -393,6 +470,11 @@ std::string describe(const OdometryMessage& m) {
       "angular {:.4f} {:.4f} {:.4f}",
       stampText(m.stamp_ns), m.frame_id, m.child_frame_id, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w(),
       m.linear.x(), m.linear.y(), m.linear.z(), m.angular.x(), m.angular.y(), m.angular.z());
+}
+
+std::string describe(const PointCloudMessage& m) {
+  return fmt::format("cloud {} {} points {} colors {} bytes {}", stampText(m.stamp_ns), m.frame_id, m.points.size(),
+                     m.colors.empty() ? "no" : "yes", m.payloadBytes());
 }
 
 std::string describe(const HealthMessage& m) {

@@ -306,6 +306,7 @@ void Publisher::process(Work& work) {
       std::vector<MarkerMessage> markers;
       for (const alg::RegionKey& r : work.regions) writeRegion(*work.snapshot, r, work.stamp_ns, markers);
       if (!markers.empty()) writeMarkers(markers);
+      writeCloud(work.stamp_ns);
       map_updates_.fetch_add(1, std::memory_order_relaxed);
       mesh_ms_total_.store(mesh_ms_total_.load(std::memory_order_relaxed) + static_cast<double>(nowNs() - t0) * 1e-6,
                            std::memory_order_relaxed);
@@ -417,6 +418,31 @@ void Publisher::writeMarkers(const std::vector<MarkerMessage>& markers) {
   marker_bytes_.fetch_add(bytes, std::memory_order_relaxed);
 }
 
+void Publisher::writeCloud(int64_t stamp_ns) {
+  PointCloudMessage cloud;
+  cloud.stamp_ns = stamp_ns;
+  cloud.frame_id = params_.frame_id;
+  for (const auto& [key, state] : regions_) {
+    for (const alg::TriangleMesh& mesh : state.meshes) {
+      cloud.points.insert(cloud.points.end(), mesh.vertices.begin(), mesh.vertices.end());
+      if (mesh.colors.size() == mesh.vertices.size()) {
+        for (const auto& c : mesh.colors) cloud.colors.push_back({c[0], c[1], c[2]});
+      } else {
+        cloud.colors.insert(cloud.colors.end(), mesh.vertices.size(), {255, 255, 255});
+      }
+    }
+  }
+  const PointCloudWire wire(cloud);
+  const Status s = writers_[static_cast<size_t>(Topic::kMapCloud)].write(&wire.wire);
+  if (!s) {
+    recordError(s);
+    return;
+  }
+  clouds_.fetch_add(1, std::memory_order_relaxed);
+  cloud_bytes_.fetch_add(cloud.payloadBytes(), std::memory_order_relaxed);
+  last_cloud_points_.store(cloud.points.size(), std::memory_order_relaxed);
+}
+
 void Publisher::resendMapToNewReaders() {
   const uint32_t total = writers_[static_cast<size_t>(Topic::kMap)].matchedReadersTotal();
   if (total <= map_readers_seen_ && !resend_all_) return;
@@ -453,6 +479,9 @@ PublisherStats Publisher::stats() const {
   s.marker_arrays = marker_arrays_.load();
   s.marker_bytes = marker_bytes_.load();
   s.map_resends = map_resends_.load();
+  s.clouds = clouds_.load();
+  s.cloud_bytes = cloud_bytes_.load();
+  s.last_cloud_points = last_cloud_points_.load();
   s.ack_timeouts = ack_timeouts_;
   s.items_dropped = items_dropped_;
   s.write_errors = write_errors_.load();

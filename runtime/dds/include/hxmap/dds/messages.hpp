@@ -7,6 +7,8 @@
 //   rt/<prefix>/map         visualization_msgs/MarkerArray  reliable, keep all (no update replaced
 //                           before delivery), transient local with the newest 1;
 //                           the whole map again whenever a reader joins
+//   rt/<prefix>/map_cloud   sensor_msgs/PointCloud2    reliable, transient local, keep last 1: the whole
+//                           map's surface points (x, y, z, rgb) every map update
 //   rt/<prefix>/map_chunks  hxmap_msgs/MapChunk        reliable, transient local, keep last 1 per (region, part)
 //   rt/<prefix>/health      hxmap_msgs/Health          reliable, transient local, keep last 1
 //   rt/tf                   tf2_msgs/TFMessage         reliable, volatile, keep last 100 (as tf2's broadcaster)
@@ -17,6 +19,7 @@
 // time of the frame, in the sensor's clock. Poses are camera-to-map.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -29,13 +32,15 @@
 
 namespace hxmap::rt::dds {
 
-enum class Topic { kPose, kOdom, kTrajectory, kMap, kMapChunks, kHealth, kTf, kTfStatic };
-inline constexpr Topic kAllTopics[] = {Topic::kPose,      Topic::kOdom,   Topic::kTrajectory, Topic::kMap,
-                                       Topic::kMapChunks, Topic::kHealth, Topic::kTf,         Topic::kTfStatic};
+enum class Topic { kPose, kOdom, kTrajectory, kMap, kMapChunks, kMapCloud, kHealth, kTf, kTfStatic };
+inline constexpr Topic kAllTopics[] = {Topic::kPose,   Topic::kOdom,      Topic::kTrajectory,
+                                       Topic::kMap,    Topic::kMapChunks, Topic::kMapCloud,
+                                       Topic::kHealth, Topic::kTf,        Topic::kTfStatic};
 
 /// "rt/<prefix>/pose" and so on; TF is ROS 2's one "rt/tf" whatever the prefix.
 std::string topicName(Topic topic, const std::string& prefix);
-/// Topic by its short name ("pose", "odom", "trajectory", "map", "map_chunks", "health", "tf", "tf_static").
+/// Topic by its short name ("pose", "odom", "trajectory", "map", "map_chunks", "map_cloud", "health", "tf",
+/// "tf_static").
 Expected<Topic> topicFromString(const std::string& name);
 const char* topicShortName(Topic topic);
 TopicQos topicQos(Topic topic);
@@ -104,6 +109,17 @@ struct MarkerMessage {
   size_t payloadBytes() const { return points.size() * 3 * sizeof(double) + colors.size() * 4 * sizeof(float); }
 };
 
+/// A sensor_msgs/PointCloud2 of colored points: fields x, y, z (float32)
+/// and rgb (a float32 holding 0x00RRGGBB, as PCL and RViz read it), 16
+/// bytes a point, one row.
+struct PointCloudMessage {
+  int64_t stamp_ns = 0;
+  std::string frame_id;
+  std::vector<Eigen::Vector3f> points;
+  std::vector<std::array<uint8_t, 3>> colors;  ///< one per point, or empty (then white)
+  size_t payloadBytes() const { return points.size() * 16; }
+};
+
 struct HealthMessage {
   int64_t stamp_ns = 0;
   std::string frame_id;
@@ -138,6 +154,12 @@ struct MarkerArrayWire {
   std::vector<std::vector<std_msgs_msg_dds__ColorRGBA_>> colors;
   visualization_msgs_msg_dds__MarkerArray_ wire{};
 };
+struct PointCloudWire {
+  explicit PointCloudWire(const PointCloudMessage& m);
+  std::vector<sensor_msgs_msg_dds__PointField_> fields;
+  std::vector<uint8_t> data;
+  sensor_msgs_msg_dds__PointCloud2_ wire{};
+};
 struct TfWire {
   explicit TfWire(const std::vector<TransformMessage>& m);
   std::vector<geometry_msgs_msg_dds__TransformStamped_> transforms;
@@ -157,6 +179,9 @@ Expected<MapChunkMessage> fromWire(const hxmap_msgs_msg_dds__MapChunk_& w);
 /// A marker whose colors are neither none nor one per point, or a triangle
 /// list whose points are not a multiple of 3, is an Error.
 Expected<std::vector<MarkerMessage>> fromWire(const visualization_msgs_msg_dds__MarkerArray_& w);
+/// Any PointCloud2 with float32 x, y, z fields (and rgb when present);
+/// sizes that disagree with the data are an Error.
+Expected<PointCloudMessage> fromWire(const sensor_msgs_msg_dds__PointCloud2_& w);
 HealthMessage fromWire(const hxmap_msgs_msg_dds__Health_& w);
 std::vector<TransformMessage> fromWire(const tf2_msgs_msg_dds__TFMessage_& w);
 
@@ -166,6 +191,7 @@ std::string describe(const PathMessage& m);
 std::string describe(const OdometryMessage& m);
 std::string describe(const MapChunkMessage& m);
 std::string describe(const std::vector<MarkerMessage>& markers);
+std::string describe(const PointCloudMessage& m);
 std::string describe(const HealthMessage& m);
 std::string describe(const TransformMessage& m);
 

@@ -14,6 +14,10 @@
 // per region part (RViz and any ROS 2 node read it), and one compact
 // MapChunk per region part (keyed, for hxmap's own readers).
 //
+// A PointCloud2 of the whole map's surface points (the region meshes'
+// vertices with their colors) follows every update: 16 bytes a point, so
+// it is small enough to be a state that late joiners get as it is.
+//
 // The MarkerArray topic is keyless: a reader that keeps one sample (or
 // lags) holds only the newest, so each sample is a whole update, and a
 // reader that joins late would get only the last update. The publisher
@@ -92,6 +96,9 @@ struct PublisherStats {
   uint64_t marker_arrays = 0;   ///< MarkerArray samples written on the map topic (one per update)
   uint64_t marker_bytes = 0;    ///< their payload (points, colors)
   uint64_t map_resends = 0;     ///< whole-map MarkerArrays sent because a reader joined
+  uint64_t clouds = 0;          ///< whole-map PointCloud2 samples (one per update)
+  uint64_t cloud_bytes = 0;     ///< their point data
+  uint64_t last_cloud_points = 0;
   uint64_t ack_timeouts = 0;    ///< flushes whose data some reliable reader had not acknowledged in time
   uint64_t items_dropped = 0;   ///< work items the full ring refused (data delayed, not lost)
   uint64_t write_errors = 0;
@@ -137,6 +144,8 @@ class Publisher {
                    std::vector<MarkerMessage>& markers);
   void writeMarkers(const std::vector<MarkerMessage>& markers);
   void resendMapToNewReaders();
+  /// The surface points of every region as last sent, as one PointCloud2.
+  void writeCloud(int64_t stamp_ns);
   void recordError(const Status& s);
 
   PublisherParams params_;
@@ -174,7 +183,8 @@ class Publisher {
   uint32_t map_readers_seen_ = 0;  ///< the map writer's matched readers, counted over the run
   bool resend_all_ = false;        ///< a MarkerArray write failed: send the whole map again
   std::atomic<uint64_t> paths_{0}, health_{0}, map_updates_{0}, regions_written_{0}, chunks_{0}, chunk_bytes_{0};
-  std::atomic<uint64_t> marker_arrays_{0}, marker_bytes_{0}, map_resends_{0};
+  std::atomic<uint64_t> marker_arrays_{0}, marker_bytes_{0}, map_resends_{0}, clouds_{0}, cloud_bytes_{0},
+      last_cloud_points_{0};
   std::atomic<uint64_t> write_errors_{0};
   std::atomic<double> mesh_ms_total_{0};
   mutable std::mutex error_mutex_;
