@@ -260,8 +260,8 @@ struct RunPipeline {
 // What the run did, for the outputs and the summary.
 struct RunRecord {
   explicit RunRecord(const RunOptions& o) : tracing(!o.trace.empty()) {
-    trace.nameThread(1, "frontend");     // offline run
-    trace.nameThread(2, "hx-frontend");  // --realtime
+    trace.nameThread(1, "hx-sensor");  // loading, in an offline run
+    trace.nameThread(2, "hx-frontend");
   }
   int64_t sinceStart(std::chrono::steady_clock::time_point t) const {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(t - start).count();
@@ -509,57 +509,49 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   return {};
 }
 
-// Offline: frame by frame. ROI jobs run to their iteration cap right after
-// the keyframe that made them, and the pose-feedback window is solved on
-// each new keyframe: no wall-clock budget, so the outputs do not depend on
-// the machine or its load (--realtime runs both on background threads).
-// The mesh and trajectory so far into the run's folder (replaced at the end).
-void checkpoint(const HxmapConfig& c, const RunPipeline& p, RunRecord& rec) {
-  const auto t0 = std::chrono::steady_clock::now();
-  const Frontend& frontend = *p.frontend;
-  Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(frontend.trajectory()));
-  if (s) s = drv::writePly(p.folder.path("mesh.ply"), frontend.mesh(c.mesh));
-  if (!s) spdlog::warn("checkpoint: {}", s.message());
-  rec.checkpoint_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
-}
+// A dataset's frames read one at a time, when the serial run asks for the
+// next; with --skip-bad an unreadable frame is skipped and counted, without
+// it the run ends there (what came before is mapped and written).
+class DatasetFrames : public FrameSource {
+ public:
+  DatasetFrames(const RunInput& in, RunRecord& rec) : in_(in), rec_(rec) {}
+  Expected<std::optional<RgbdFrame>> next(const std::atomic<bool>& stop) override {
+    while (next_ < in_.frames.size() && !stop.load()) {
+      const size_t index = in_.frames[next_++];
+      auto frame = in_.dataset->load(index);
+      if (frame) return std::optional<RgbdFrame>{std::move(*frame)};
+      if (!in_.options.skip_bad) return fail(frame.message() + " (use --skip-bad to skip unreadable frames)");
+      ++rec_.bad_frames;
+      spdlog::warn("skipped frame {}: {}", index, frame.message());
+    }
+    return std::optional<RgbdFrame>{};
+  }
+  double fps() const override { return 30; }  // unused: a serial run has no deadline
+  size_t size() const override { return in_.frames.size(); }
+  size_t read() const { return next_; }
 
+ private:
+  const RunInput& in_;
+  RunRecord& rec_;
+  size_t next_ = 0;
+};
+
+// Offline: the real-time run's stages, one after another on this thread
+// (runSerial). ROI jobs run to their iteration cap after the keyframe that
+// made them, the pose-feedback window is solved on each new keyframe, loop
+// closure takes every step: no wall-clock budget, so the outputs do not
+// depend on the machine or its load.
 void runOffline(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipeline& p, RunRecord& rec) {
-  Frontend& frontend = *p.frontend;
-  auto last_checkpoint = std::chrono::steady_clock::now();
-  std::optional<SerialFeedback> feedback;
-  if (p.params.feedback.enabled) feedback.emplace(p.params.feedback);
+  DatasetFrames source(in, rec);
   Progress progress("mapping", in.frames.size());
-  for (size_t k = 0; k < in.frames.size(); ++k) {
-    if (g_stop.load()) {
-      rec.stopped = true;
-      break;
-    }
-    const auto t_load = std::chrono::steady_clock::now();
-    auto frame = in.dataset->load(in.frames[k]);
-    if (!frame) {
-      if (!in.options.skip_bad) {
-        rec.first_error = frame.message();
-        spdlog::error("{} (use --skip-bad to skip unreadable frames)", frame.message());
-        break;
-      }
-      ++rec.bad_frames;
-      spdlog::warn("skipped frame {}: {}", in.frames[k], frame.message());
-      continue;
-    }
-    const auto t_frame = std::chrono::steady_clock::now();
-    Eigen::Isometry3d T_world_truth;
-    const int64_t stamp = frame->depth_stamp_ns > 0 ? frame->depth_stamp_ns : frame->stamp_ns;
-    const bool use_truth =
-        o.fuse_ground_truth && alg::interpolatePose(in.groundTruth(), stamp, 200'000'000, T_world_truth);
-    if (o.fuse_ground_truth && !use_truth) ++rec.frames_without_truth;
-    const FrameResult r = frontend.process(*frame, use_truth ? &T_world_truth : nullptr);
-    if (rec.tracing) {
-      const int64_t seq = static_cast<int64_t>(in.frames[k]), t = rec.sinceStart(t_frame);
-      rec.trace.add({"load", "sensor", rec.sinceStart(t_load), t - rec.sinceStart(t_load), 1, seq, frame->stamp_ns});
-      traceFrameStages(rec.trace, r, t, 1, seq);
-    }
+  bool halt = false;  // an output failed: the run ends after this frame
+  RealtimeOptions so;
+  so.refine_workers = c.runtime.refine_workers;
+  so.loop_parallel = p.parallel;
+  so.should_stop = [&halt] { return halt; };
+  so.on_frame = [&](const FrameResult& r, const Frontend& frontend, const RunCounters& counters) {
     spdlog::debug("frame {}: {} ({}) inliers {} within noise {:.0f} % rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]{}{}",
-                  in.frames[k], alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
+                  source.read() - 1, alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
                   100 * r.consistent_ratio, r.rms_residual_m * 1000, r.T_world_cam.translation().x(),
                   r.T_world_cam.translation().y(), r.T_world_cam.translation().z(), r.failure.empty() ? "" : ": ",
                   r.failure);
@@ -567,36 +559,48 @@ void runOffline(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipe
       if (auto s = writeKeyframeQuality(o.save_quality, frontend, r.keyframe_id); !s) {
         spdlog::error("{}", s.message());
         rec.first_error = s.message();
-        break;
+        halt = true;
       }
     }
-    for (const RefineJob& job : frontend.takeRefineJobs()) {
-      const RefineOutcome outcome = runRefineJob(job, p.params.refine.implicit, RefineBudget::kIterationsOnly);
-      frontend.applyRefinement(outcome);
-      rec.refine.add(outcome);
-    }
-    if (feedback) feedback->step(frontend);
-    const double sum = rec.add(r);
     p.live_file->append(r.stamp_ns, r.T_world_cam);
 #ifdef HXMAP_HAVE_DDS
     if (p.publisher) {
-      p.publisher->onFrame(
-          r, frontend.map(), frontend.trajectory(),
-          RunCounters{
-              rec.bad_frames, 0, rec.refine.jobs, 0,
-              static_cast<double>(rec.sinceStart(std::chrono::steady_clock::now()) - rec.sinceStart(t_load)) * 1e-6});
+      RunCounters with_skipped = counters;
+      with_skipped.frames_dropped = rec.bad_frames;
+      p.publisher->onFrame(r, frontend.map(), frontend.trajectory(), with_skipped);
     }
+#else
+    (void)counters;
 #endif
-    progress.update(k + 1, fmt::format("{:.1f} ms/frame", sum));
-    if (c.runtime.checkpoint_s > 0 &&
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint).count() >=
-            c.runtime.checkpoint_s) {
-      checkpoint(c, p, rec);
-      last_checkpoint = std::chrono::steady_clock::now();
-    }
+    double sum = 0;
+    for (double ms : r.stage_ms) sum += ms;
+    progress.update(source.read(), fmt::format("{:.1f} ms/frame", sum));
+  };
+  so.on_refined = [&rec](const RefineOutcome& outcome) { rec.refine.add(outcome); };
+  if (o.fuse_ground_truth) {
+    so.given_pose = [&](const RgbdFrame& frame, Eigen::Isometry3d& T_world_cam) {
+      const int64_t stamp = frame.depth_stamp_ns > 0 ? frame.depth_stamp_ns : frame.stamp_ns;
+      const bool found = alg::interpolatePose(in.groundTruth(), stamp, 200'000'000, T_world_cam);
+      rec.frames_without_truth += !found;
+      return found;
+    };
   }
+  // The mesh and trajectory so far into the run's folder (replaced at the end).
+  so.checkpoint_s = c.runtime.checkpoint_s;
+  so.on_checkpoint = [&](MapCheckpoint&& cp) {
+    const auto t0 = std::chrono::steady_clock::now();
+    Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(cp.trajectory));
+    if (s) s = drv::writePly(p.folder.path("mesh.ply"), alg::extractHybridMesh(*cp.map, c.mesh, cp.details));
+    if (!s) spdlog::warn("checkpoint: {}", s.message());
+    rec.checkpoint_ms.push_back(
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  };
+  const RealtimeStats rs = runSerial(source, *p.frontend, so, g_stop, rec.tracing ? &rec.trace : nullptr);
+  for (const FrameResult& r : rs.results) rec.add(r);
+  if (rec.first_error.empty()) rec.first_error = rs.source_error;
+  rec.stopped = g_stop.load();
   rec.end_counters = {rec.bad_frames, 0, rec.refine.jobs, 0, 0};
-  if (feedback) rec.feedback_text = feedback->tally().text(frontend.feedbackCounters(), p.params.feedback);
+  if (p.params.feedback.enabled) rec.feedback_text = rs.feedback.text(p.frontend->feedbackCounters(), p.params.feedback);
 }
 
 // What went to disk; outputs are written even after an error, so nothing

@@ -1,6 +1,6 @@
 // Pose feedback's effect on the trajectory (issue: ATE with feedback off and
 // on). Each sequence runs through the frontend twice in the same process,
-// feedback off then on (SerialFeedback: the window solved after every new
+// feedback off then on (a serial run: the window solved after every new
 // keyframe, corrections and re-integrations applied before the next frame),
 // with the same parameters otherwise (refinement and quality scoring off, to
 // isolate the feedback):
@@ -22,6 +22,7 @@
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "quality_room_sequence.hpp"
 #include "synthetic_fixture.hpp"
 
@@ -60,12 +61,12 @@ RunResult runSequence(const Sequence& s, bool feedback) {
   rt::Frontend fe(s.camera, fp);
   Eigen::Isometry3d T0;
   if (alg::interpolatePose(s.ground_truth, s.frames[0].stamp_ns, 200'000'000, T0)) fe.setInitialPose(T0);
-  rt::SerialFeedback fb(fp.feedback);
+  rt::FrameList source(s.frames);
+  const std::atomic<bool> stop{false};
+  const rt::RealtimeStats run = rt::runSerial(source, fe, rt::RealtimeOptions{}, stop);
   std::vector<int64_t> keyframe_stamps;
-  for (const auto& f : s.frames) {
-    const auto r = fe.process(f);
+  for (const auto& r : run.results) {
     if (r.keyframe) keyframe_stamps.push_back(r.stamp_ns);
-    if (feedback) fb.step(fe);
   }
   RunResult out;
   out.ate_m = alg::computeAte(fe.trajectory(), s.ground_truth).rmse_m;
@@ -74,7 +75,7 @@ RunResult runSequence(const Sequence& s, bool feedback) {
     if (std::find(keyframe_stamps.begin(), keyframe_stamps.end(), p.stamp_ns) != keyframe_stamps.end()) kf.push_back(p);
   }
   out.keyframe_ate_m = alg::computeAte(kf, s.ground_truth).rmse_m;
-  out.tally = fb.tally();
+  out.tally = run.feedback;
   out.counters = fe.feedbackCounters();
   out.keyframes = fe.keyframes();
   return out;

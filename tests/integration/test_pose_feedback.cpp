@@ -1,5 +1,5 @@
 // Pose feedback in the loop (paper 3.4): the frontend with the window solved
-// after every keyframe (SerialFeedback: deterministic), on the synthetic
+// after every keyframe (a serial run: deterministic), on the synthetic
 // room, against the same run without feedback. With drifting odometry the
 // feedback must remove a clear share of the trajectory error; without
 // drift it must not make it worse beyond a small tolerance.
@@ -13,6 +13,7 @@
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "synthetic_fixture.hpp"
 
 namespace hxmap::rt {
@@ -59,12 +60,10 @@ class PoseFeedbackLoop : public ::testing::Test {
     const FrontendParams p = feedbackParams(feedback, bias);
     Frontend fe(cam_, p);
     fe.setInitialPose(truth_.front().T_world_cam);
-    SerialFeedback fb(p.feedback);
-    for (const auto& f : frames_) {
-      fe.process(f);
-      if (feedback) fb.step(fe);
-    }
-    return {alg::computeAte(fe.trajectory(), truth_).rmse_m, fe.trajectory(), fe.feedbackCounters(), fb.tally()};
+    FrameList source(frames_);
+    const std::atomic<bool> stop{false};
+    const RealtimeStats s = runSerial(source, fe, RealtimeOptions{}, stop);
+    return {alg::computeAte(fe.trajectory(), truth_).rmse_m, fe.trajectory(), fe.feedbackCounters(), s.feedback};
   }
   const alg::PinholeCamera cam_{262.5, 262.5, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
   Trajectory truth_;

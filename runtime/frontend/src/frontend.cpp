@@ -618,18 +618,6 @@ int Frontend::reintegratePending(int max) {
   return done;
 }
 
-bool SerialFeedback::step(Frontend& frontend) {
-  std::vector<alg::WindowKeyframe> kfs = frontend.takeFeedbackKeyframes();
-  if (kfs.empty()) return false;
-  const auto surfaces = frontend.implicitSurfaces();
-  alg::FeedbackMaps maps{&frontend.map(), {}};
-  for (const auto& s : surfaces) maps.implicit.push_back(s.get());
-  for (auto& kf : kfs) solver_.add(std::move(kf), maps);
-  for (const KeyframeCorrection& c : solver_.solve(maps)) frontend.applyKeyframeCorrection(c);
-  frontend.reintegratePending();
-  return true;
-}
-
 void Frontend::scoreKeyframe(FrameResult& r) {
   // The model view was raycast at this pose after the keyframe was fused,
   // at the model level; the frame's level of the same size pairs with it.

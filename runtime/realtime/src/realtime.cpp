@@ -111,7 +111,7 @@ bool watchRun(const RunContext& ctx, const FrameSource& source, const stages::Fr
 
 // The run's figures and its report, once every stage is joined.
 void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::SensorStage& sensor,
-               stages::FrontendStage& front, const RefinePool& refine, const stages::BurnLoad& burn,
+               stages::FrontendStage& front, const RefinePool& refine, const BackgroundLoad* extra,
                const FeedbackStage& feedback, const LoopStage& loop, const Frontend& frontend,
                const FrameSource& source) {
   stats.counters = ctx.sched.counters();
@@ -123,7 +123,6 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   stats.latency_p99_ms = percentileOf(front.latency_ms, 0.99);
   stats.frontend_p50_ms = percentileOf(front.frontend_ms, 0.5);
   stats.frontend_p99_ms = percentileOf(front.frontend_ms, 0.99);
-  stats.burn_slices_run = burn.slices();
   stats.keyframes_to_feedback = feedback.keyframes_seen.load();
   stats.patches_applied = front.patches_applied;
   stats.corrections_applied = front.corrections_applied;
@@ -141,7 +140,7 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   stats.checkpoint_copy_max_ms = percentileOf(front.checkpoint_copy_ms, 1.0);
   stats.results = std::move(front.results);
   const SchedulerCounters& c = stats.counters;
-  const size_t background = refine.size() + burn.size();
+  const size_t background = refine.size();
   const uint64_t made = refine.submitted + refine.rejected;
   stats.report = fmt::format(
       "realtime run at {:.1f} FPS (deadline {:.1f} ms), {} threads: sensor, frontend, feedback, {} refinement{}\n"
@@ -151,7 +150,6 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
       "  background: {} jobs submitted, {} completed, {} shed before start, {} cancelled; {} slices paused\n"
       "  ROI refinement: {} jobs made, {} to workers ({} rejected: rings full), {} completed and written back "
       "({:.0f}%), {} shed, {} still queued or running at the end; {} slices, {} voxels written\n"
-      "  burn load: {} slices ({:.0f} ms of CPU)\n"
       "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} keyframe "
       "corrections\n",
       ctx.sched.params().target_fps, ctx.sched.periodNs() * 1e-6, 3 + background + (loop.enabled() ? 1 : 0), background,
@@ -163,9 +161,9 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
           ? 100.0 * static_cast<double>(stats.refine_jobs_completed) / static_cast<double>(refine.submitted)
           : 0.0,
       stats.refine_jobs_shed, refine.submitted - stats.refine_jobs_completed - stats.refine_jobs_shed,
-      stats.refine_slices, stats.refine_voxels_written, stats.burn_slices_run,
-      static_cast<double>(stats.burn_slices_run) * burn.sliceMs(), stats.keyframes_to_feedback,
+      stats.refine_slices, stats.refine_voxels_written, stats.keyframes_to_feedback,
       stats.feedback_ring_full, stats.patches_applied, stats.corrections_applied);
+  if (extra) stats.report += "  " + extra->reportLine() + "\n";
   if (stats.checkpoints > 0) {
     stats.report += fmt::format(
         "  checkpoints: {} map copies on the frontend thread ({} forced without slack), p50 {:.1f} ms, max {:.1f} ms\n",
@@ -175,9 +173,10 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   if (fp.enabled) {
     stats.feedback_windows_skipped = feedback.windows_skipped.load();
     stats.feedback_windows_shed = feedback.windows_shed.load();
-    stats.feedback_windows_solved = feedback.tally.windows;
-    stats.feedback_corrections_sent = feedback.tally.corrections_sent;
-    stats.report += "  " + feedback.tally.text(frontend.feedbackCounters(), fp);
+    stats.feedback_windows_solved = feedback.tally().windows;
+    stats.feedback_corrections_sent = feedback.tally().corrections_sent;
+    stats.feedback = feedback.tally();
+    stats.report += "  " + feedback.tally().text(frontend.feedbackCounters(), fp);
     stats.report += fmt::format(
         "  feedback windows skipped at effort 0: {}, cut short by the scheduler: {}; "
         "corrections lost (ring full): {}\n",
@@ -203,21 +202,21 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   SchedulerParams sp = options.scheduler;
   if (source.fps() > 0) sp.target_fps = source.fps();
   RunContext ctx(sp, trace);
-  const bool burning = options.burn_slice_ms > 0;
   const int workers = std::max(0, options.refine_workers), nice = options.background_nice;
 
   // The stages, from the last to the first (each knows where its output goes).
-  RefinePool refine(ctx, burning ? 0 : workers, frontend.params().refine.implicit, nice);
-  stages::BurnLoad burn(ctx, burning ? workers : 0, options.burn_slice_ms, options.burn_slices_per_job, nice, 3);
+  RefinePool refine(ctx, workers, frontend.params().refine.implicit, nice);
   FeedbackStage feedback(ctx, frontend, sp.max_feedback_effort, nice, 3 + workers);
   LoopStage loop(ctx, frontend.detachLoopCloser(), options.loop_parallel, nice, 3 + workers + 1);
   stages::FrontendStage front(ctx, frontend, options, refine, feedback, loop);
   stages::SensorStage sensor(ctx, source, front.inbox());
 
   refine.start();
-  burn.start();
   feedback.start();
   loop.start();
+  if (options.extra_load) {
+    options.extra_load->start(ctx.sched, [&ctx] { return ctx.nowNs(); }, ctx.stopping, trace);
+  }
   front.start();
   sensor.start(stop, front.ready());  // once the frontend has warmed up
 
@@ -228,7 +227,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   front.join();
   ctx.stopBackground();
   refine.join();
-  burn.join();
+  if (options.extra_load) options.extra_load->join();
   feedback.join();
   loop.join();
   // What the background stages finished after the last frame: applied now
@@ -236,7 +235,39 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   loop.finish(frontend);
   front.applyOutcomes();
   stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();
-  summarize(stats, ctx, sensor, front, refine, burn, feedback, loop, frontend, source);
+  summarize(stats, ctx, sensor, front, refine, options.extra_load, feedback, loop, frontend, source);
+  return stats;
+}
+
+RealtimeStats runSerial(FrameSource& source, Frontend& frontend, const RealtimeOptions& options,
+                        const std::atomic<bool>& stop, TraceRecorder* trace) {
+  RunContext ctx(options.scheduler, trace, /*serial=*/true);
+  RealtimeOptions serial = options;
+  serial.warm_up = false;
+  const int workers = std::max(1, options.refine_workers);
+
+  RefinePool refine(ctx, workers, frontend.params().refine.implicit, 0);
+  FeedbackStage feedback(ctx, frontend, options.scheduler.max_feedback_effort, 0, 3 + workers);
+  LoopStage loop(ctx, frontend.detachLoopCloser(), options.loop_parallel, 0, 3 + workers + 1);
+  stages::FrontendStage front(ctx, frontend, serial, refine, feedback, loop);
+  stages::SensorStage sensor(ctx, source, front.inbox());
+
+  const auto wall0 = Clock::now();
+  RealtimeStats stats;
+  while (!(options.should_stop && options.should_stop())) {
+    std::optional<stages::Arrival> a = sensor.pull(stop);
+    if (!a) break;
+    front.step(*a);
+    refine.runQueued();
+    feedback.solveQueued();
+    loop.stepQueued();
+    front.settle();
+  }
+  stats.stopped_early = stop.load() || (options.should_stop && options.should_stop());
+  loop.finish(frontend);
+  front.applyOutcomes();
+  stats.wall_s = std::chrono::duration<double>(Clock::now() - wall0).count();
+  summarize(stats, ctx, sensor, front, refine, nullptr, feedback, loop, frontend, source);
   return stats;
 }
 

@@ -38,23 +38,33 @@ void SensorStage::start(const std::atomic<bool>& stop, const std::atomic<bool>& 
 }
 
 void SensorStage::run(const std::atomic<bool>& stop) {
-  for (int64_t i = 0; !stop.load(); ++i) {
-    auto next = source_.next(stop);
-    if (!next) {
-      error = next.message();
-      spdlog::error("{}", error);
-      return;
-    }
-    if (!next->has_value()) return;  // the end of the stream, or stopped
-    Arrival a{std::move(**next), ctx_.nowNs(), i};
-    if (i == 0) first_arrival_ns = a.arrival_ns;
-    last_arrival_ns = a.arrival_ns;
-    ctx_.sched.frameArrived(a.arrival_ns);
-    if (out_.publish(std::move(a))) {
+  while (std::optional<Arrival> a = pull(stop)) {
+    const int64_t i = a->index;
+    if (out_.publish(std::move(*a))) {
       ctx_.sched.framesDropped(1);
       spdlog::debug("frame {} replaced an unprocessed one (dropped)", i);
     }
   }
+}
+
+std::optional<Arrival> SensorStage::pull(const std::atomic<bool>& stop) {
+  if (stop.load()) return std::nullopt;
+  const int64_t t0 = ctx_.nowNs();
+  auto next = source_.next(stop);
+  if (!next) {
+    error = next.message();
+    spdlog::error("{}", error);
+    return std::nullopt;
+  }
+  if (!next->has_value()) return std::nullopt;  // the end of the stream, or stopped
+  Arrival a{std::move(**next), ctx_.nowNs(), pulled_++};
+  // A serial run reads each frame when it wants it: that is its load time
+  // (a live source's next() waits for the frame's time instead).
+  if (ctx_.serial && ctx_.trace) ctx_.trace->add({"load", "sensor", t0, a.arrival_ns - t0, 1, a.index, a.frame.stamp_ns});
+  if (a.index == 0) first_arrival_ns = a.arrival_ns;
+  last_arrival_ns = a.arrival_ns;
+  ctx_.sched.frameArrived(a.arrival_ns);
+  return a;
 }
 
 // ----------------------------------------------------------- refinement
@@ -73,16 +83,20 @@ void RefineWorker::run() {
   const std::string name = fmt::format("hx-refine-{}", index_);
   nameThisThread(name.c_str());
   niceThisThread(name.c_str(), nice_);
-  RefineJob job;
   while (!ctx_.stopping.load()) {
     const uint32_t seen = bell_.read();
-    if (jobs_.tryPop(job)) {
-      runJob(job);
-      job = RefineJob{};  // release the snapshot and images now
-      in_flight_.fetch_sub(1);
+    if (in_flight_.load() > 0) {
+      runQueued();
       continue;
     }
     bell_.wait(seen, ctx_.stopping);  // no polling
+  }
+}
+
+void RefineWorker::runQueued() {
+  for (RefineJob job; !ctx_.stopping.load() && jobs_.tryPop(job); job = RefineJob{}) {  // releases the snapshot
+    runJob(job);
+    in_flight_.fetch_sub(1);
   }
 }
 
@@ -98,10 +112,12 @@ void RefineWorker::runJob(RefineJob& job) {
     // Each phase's slices have their own cost model: a setup slice costs
     // several iterations, and one cost for both would keep iterations out
     // of slack they fit in.
-    const bool training = refiner && !refiner->finished() && outcome.train_ms < params_.time_budget_ms;
+    // A serial run trains to the iteration cap: no wall-clock budget.
+    const bool training =
+        refiner && !refiner->finished() && (ctx_.serial || outcome.train_ms < params_.time_budget_ms);
     ticket.kind = !refiner ? "refine setup" : training ? "refine" : "refine write-back";
     const uint64_t epoch = sched.frameEpoch();
-    const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
+    const Verdict v = ctx_.admit(ticket);
     if (v == Verdict::kWait) {
       ctx_.waitForFrameEnd(epoch);
       continue;
@@ -140,7 +156,7 @@ void RefineWorker::runJob(RefineJob& job) {
   }
 }
 
-RefinePool::RefinePool(RunContext& ctx, int workers, const alg::ImplicitParams& params, int nice) {
+RefinePool::RefinePool(RunContext& ctx, int workers, const alg::ImplicitParams& params, int nice) : ctx_(ctx) {
   for (int w = 0; w < workers; ++w) workers_.push_back(std::make_unique<RefineWorker>(ctx, w, params, nice, counters));
 }
 
@@ -163,64 +179,14 @@ void RefinePool::submit(std::vector<RefineJob> jobs) {
     for (size_t k = 0; k < n && !pushed; ++k) {
       const size_t w = (next_ + k) % n;
       pushed = workers_[w]->offer(std::move(job));
+      if (!pushed && ctx_.serial) {
+        workers_[w]->runQueued();
+        pushed = workers_[w]->offer(std::move(job));
+      }
       if (pushed) next_ = w + 1;
     }
     ++(pushed ? submitted : rejected);
   }
-}
-
-// ------------------------------------------------------------ burn load
-
-BurnLoad::BurnLoad(RunContext& ctx, int threads, double slice_ms, int slices_per_job, int nice, int first_lane)
-    : ctx_(ctx),
-      threads_n_(slice_ms > 0 ? static_cast<size_t>(std::max(0, threads)) : 0),
-      slice_ms_(slice_ms),
-      slices_per_job_(slices_per_job),
-      nice_(nice),
-      first_lane_(first_lane) {}
-
-void BurnLoad::start() {
-  for (size_t i = 0; i < threads_n_; ++i) threads_.emplace_back([this, i] { run(static_cast<int>(i)); });
-}
-
-void BurnLoad::join() {
-  for (auto& t : threads_) t.join();
-}
-
-void BurnLoad::run(int index) {
-  const std::string name = fmt::format("hx-burn-{}", index);
-  nameThisThread(name.c_str());
-  niceThisThread(name.c_str(), nice_);
-  Scheduler& sched = ctx_.sched;
-  JobTicket job{"burn", slice_ms_};
-  int done = 0;
-  sched.jobSubmitted(job, ctx_.nowNs());
-  volatile double sink = 0;
-  while (!ctx_.stopping.load()) {
-    const uint64_t epoch = sched.frameEpoch();
-    const Verdict v = sched.admitSlice(job, ctx_.nowNs());
-    if (v == Verdict::kWait) {
-      ctx_.waitForFrameEnd(epoch);  // slack changes when a frame ends
-      continue;
-    }
-    if (v == Verdict::kShed || done == slices_per_job_) {
-      if (v != Verdict::kShed) sched.jobFinished(job);
-      job = JobTicket{"burn", slice_ms_};
-      done = 0;
-      sched.jobSubmitted(job, ctx_.nowNs());
-      continue;
-    }
-    const int64_t s0 = ctx_.nowNs(), s_end = s0 + static_cast<int64_t>(slice_ms_ * 1e6);
-    while (ctx_.nowNs() < s_end) {  // burn the CPU
-      for (int k = 0; k < 1000; ++k) sink = sink + std::sqrt(static_cast<double>(k) + sink * 1e-9);
-    }
-    const int64_t s1 = ctx_.nowNs();
-    sched.sliceFinished(job, static_cast<double>(s1 - s0) * 1e-6);
-    slices_.fetch_add(1);
-    ++done;
-    if (ctx_.trace) ctx_.trace->add({"burn", "background", s0, s1 - s0, first_lane_ + index, -1, -1});
-  }
-  (void)sink;
 }
 
 // ------------------------------------------------------------- feedback
@@ -231,7 +197,8 @@ FeedbackStage::FeedbackStage(RunContext& ctx, const Frontend& frontend, int max_
       params_(frontend.params().feedback),
       max_effort_(std::max(1, max_effort)),
       nice_(nice),
-      lane_(lane) {}
+      lane_(lane),
+      solver_(params_) {}
 
 void FeedbackStage::offer(std::vector<alg::WindowKeyframe> keyframes, Frontend& frontend) {
   for (std::shared_ptr<const alg::TsdfMap> done; snapshots_done_.tryPop(done);)
@@ -240,7 +207,7 @@ void FeedbackStage::offer(std::vector<alg::WindowKeyframe> keyframes, Frontend& 
   if (backlog_.empty()) return;
   const FeedbackCounters fc = frontend.feedbackCounters();
   const double copy_ms = fc.snapshots > 0 ? fc.snapshot_ms / static_cast<double>(fc.snapshots) : 4.0;
-  if (ctx_.sched.slackMs(ctx_.nowNs()) <= 1.5 * copy_ms) return;
+  if (ctx_.slackMs() <= 1.5 * copy_ms) return;
   const std::shared_ptr<const alg::TsdfMap> snapshot = frontend.feedbackSnapshot();
   for (alg::WindowKeyframe& kf : backlog_) {
     if (!keyframes_.tryPush({std::move(kf), snapshot})) ++keyframes_full;
@@ -252,84 +219,80 @@ void FeedbackStage::offer(std::vector<alg::WindowKeyframe> keyframes, Frontend& 
 void FeedbackStage::run() {
   nameThisThread("hx-feedback");
   niceThisThread("hx-feedback", nice_);
-  Scheduler& sched = ctx_.sched;
-  FeedbackSolver solver(params_);
-  std::shared_ptr<const alg::TsdfMap> snapshot;
-  alg::FeedbackMaps maps;
-  // The refined regions' fields (shared: a field lives while a solve uses it).
-  std::vector<std::shared_ptr<const alg::ImplicitSurface>> surfaces;
-  FeedbackInput in;
   while (!ctx_.stopping.load()) {
     const uint32_t seen = bell_.read();
-    bool added = false;
-    while (keyframes_.tryPop(in)) {
-      if (snapshot && snapshot != in.map) {
-        // Done with the previous copy: no queued keyframe refers to it.
-        if (!snapshots_done_.tryPush(std::move(snapshot))) snapshot.reset();
-      }
-      snapshot = std::move(in.map);
-      maps.tsdf = snapshot.get();
-      solver.add(std::move(in.keyframe), maps);
-      keyframes_seen.fetch_add(1);
-      added = true;
-    }
-    if (!added) {
-      bell_.wait(seen, ctx_.stopping);  // no polling
-      continue;
-    }
-    const int effort = sched.feedbackEffort();
-    if (effort <= 0) {
-      windows_skipped.fetch_add(1);
-      continue;
-    }
-    const int iterations =
-        std::max(1, (params_.iterations * std::min(effort, max_effort_) + max_effort_ - 1) / max_effort_);
-    JobTicket ticket{"feedback", 2.0};
-    sched.jobSubmitted(ticket, ctx_.nowNs());
-    bool shed = false, in_slice = false;
-    int64_t slice_start = 0;
-    auto endSlice = [&] {
-      if (!in_slice) return;
-      const int64_t t = ctx_.nowNs();
-      sched.sliceFinished(ticket, static_cast<double>(t - slice_start) * 1e-6);
-      if (ctx_.trace) ctx_.trace->add({"feedback", "background", slice_start, t - slice_start, lane_, -1, -1});
-      in_slice = false;
-    };
-    // Called by the solver between its steps: true stops the solve.
-    auto stopSolve = [&] {
-      endSlice();
-      while (!ctx_.stopping.load()) {
-        const uint64_t epoch = sched.frameEpoch();
-        const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
-        if (v == Verdict::kRun) {
-          in_slice = true;
-          slice_start = ctx_.nowNs();
-          return false;
-        }
-        if (v == Verdict::kShed) {
-          shed = true;
-          return true;
-        }
-        ctx_.waitForFrameEnd(epoch);
-      }
-      return true;
-    };
-    surfaces = frontend_.implicitSurfaces();
-    maps.implicit.clear();
-    for (const auto& sf : surfaces) maps.implicit.push_back(sf.get());
-    const std::vector<KeyframeCorrection> out = solver.solve(maps, stopSolve, iterations);
-    endSlice();
-    if (shed) {
-      windows_shed.fetch_add(1);
-    } else {
-      sched.jobFinished(ticket);
-    }
-    for (const KeyframeCorrection& c : out) {
-      if (!corrections_.tryPush(c)) corrections_full.fetch_add(1);
-    }
+    if (!solveQueued()) bell_.wait(seen, ctx_.stopping);  // no polling
   }
-  while (keyframes_.tryPop(in)) keyframes_seen.fetch_add(1);
-  tally = solver.tally();
+  for (FeedbackInput in; keyframes_.tryPop(in);) keyframes_seen.fetch_add(1);
+}
+
+bool FeedbackStage::solveQueued() {
+  Scheduler& sched = ctx_.sched;
+  bool added = false;
+  alg::FeedbackMaps maps{snapshot_.get(), {}};
+  for (FeedbackInput in; keyframes_.tryPop(in);) {
+    if (snapshot_ && snapshot_ != in.map) {
+      // Done with the previous copy: no queued keyframe refers to it.
+      if (!snapshots_done_.tryPush(std::move(snapshot_))) snapshot_.reset();
+    }
+    snapshot_ = std::move(in.map);
+    maps.tsdf = snapshot_.get();
+    solver_.add(std::move(in.keyframe), maps);
+    keyframes_seen.fetch_add(1);
+    added = true;
+  }
+  if (!added) return false;
+  const int effort = ctx_.serial ? max_effort_ : sched.feedbackEffort();
+  if (effort <= 0) {
+    windows_skipped.fetch_add(1);
+    return true;
+  }
+  const int iterations =
+      std::max(1, (params_.iterations * std::min(effort, max_effort_) + max_effort_ - 1) / max_effort_);
+  JobTicket ticket{"feedback", 2.0};
+  sched.jobSubmitted(ticket, ctx_.nowNs());
+  bool shed = false, in_slice = false;
+  int64_t slice_start = 0;
+  auto endSlice = [&] {
+    if (!in_slice) return;
+    const int64_t t = ctx_.nowNs();
+    sched.sliceFinished(ticket, static_cast<double>(t - slice_start) * 1e-6);
+    if (ctx_.trace) ctx_.trace->add({"feedback", "background", slice_start, t - slice_start, lane_, -1, -1});
+    in_slice = false;
+  };
+  // Called by the solver between its steps: true stops the solve.
+  auto stopSolve = [&] {
+    endSlice();
+    while (!ctx_.stopping.load()) {
+      const uint64_t epoch = sched.frameEpoch();
+      const Verdict v = ctx_.admit(ticket);
+      if (v == Verdict::kRun) {
+        in_slice = true;
+        slice_start = ctx_.nowNs();
+        return false;
+      }
+      if (v == Verdict::kShed) {
+        shed = true;
+        return true;
+      }
+      ctx_.waitForFrameEnd(epoch);
+    }
+    return true;
+  };
+  // The refined regions' fields (shared: a field lives while the solve uses it).
+  const std::vector<std::shared_ptr<const alg::ImplicitSurface>> surfaces = frontend_.implicitSurfaces();
+  for (const auto& sf : surfaces) maps.implicit.push_back(sf.get());
+  const std::vector<KeyframeCorrection> out = solver_.solve(maps, stopSolve, iterations);
+  endSlice();
+  if (shed) {
+    windows_shed.fetch_add(1);
+  } else {
+    sched.jobFinished(ticket);
+  }
+  for (const KeyframeCorrection& c : out) {
+    if (!corrections_.tryPush(c)) corrections_full.fetch_add(1);
+  }
+  return true;
 }
 
 // --------------------------------------------------------- loop closure
@@ -380,7 +343,7 @@ void LoopStage::run() {
     }
     ticket.kind = closer_->rebuilding() ? "loop rebuild" : "loop";
     const uint64_t epoch = sched.frameEpoch();
-    const Verdict v = sched.admitSlice(ticket, ctx_.nowNs());
+    const Verdict v = ctx_.admit(ticket);
     if (v == Verdict::kWait) {
       waits.fetch_add(1);
       ctx_.waitForFrameEnd(epoch);
@@ -409,6 +372,26 @@ void LoopStage::run() {
       sched.jobFinished(ticket);
       in_job = false;
     }
+  }
+}
+
+bool LoopStage::takeCorrection(LoopCorrection& out) {
+  if (corrections_.tryPop(out)) return true;
+  if (!ctx_.serial || unsent_.empty()) return false;
+  out = std::move(unsent_.front());  // one thread: what the ring had no room for
+  unsent_.pop_front();
+  return true;
+}
+
+void LoopStage::stepQueued() {
+  if (!closer_) return;
+  for (LoopKeyframe kf; keyframes_.tryPop(kf);) closer_->add(withOwnImages(std::move(kf)));
+  while (closer_->busy()) {
+    const int64_t s0 = ctx_.nowNs();
+    closer_->step();
+    slices.fetch_add(1);
+    if (ctx_.trace) ctx_.trace->add({"loop", "background", s0, ctx_.nowNs() - s0, lane_, -1, -1});
+    if (std::optional<LoopCorrection> c = closer_->takeCorrection()) unsent_.push_back(std::move(*c));
   }
 }
 
@@ -447,16 +430,23 @@ void FrontendStage::run() {
     } ready{ready_};
     frontend_.warmUp();
   }
-  for (Arrival a; inbox_.take(a);) {
-    applyBackgroundResults();
-    FrameResult r = process(a);
-    handOn();
-    const FrameResult& kept = results.emplace_back(std::move(r));
-    frames_done_.fetch_add(1, std::memory_order_relaxed);
-    reintegrateIntoSlack(kept);
-    checkpointIntoSlack();
-  }
+  for (Arrival a; inbox_.take(a);) step(a);
   done_.store(true);
+}
+
+void FrontendStage::step(const Arrival& a) {
+  applyBackgroundResults();
+  FrameResult r = process(a);
+  handOn();
+  const FrameResult& kept = results.emplace_back(std::move(r));
+  frames_done_.fetch_add(1, std::memory_order_relaxed);
+  reintegrateIntoSlack(kept);
+  checkpointIntoSlack();
+}
+
+void FrontendStage::settle() {
+  applyBackgroundResults();
+  frontend_.reintegratePending();
 }
 
 void FrontendStage::applyOutcomes() {
@@ -464,6 +454,7 @@ void FrontendStage::applyOutcomes() {
     const alg::PatchStats ps = frontend_.applyRefinement(outcome);
     patches_applied += ps.applied > 0;
     voxels_written += ps.applied;
+    if (options_.on_refined) options_.on_refined(outcome);
   });
 }
 
@@ -484,11 +475,14 @@ FrameResult FrontendStage::process(const Arrival& a) {
   // behind others ran seconds later with stale ROIs, or found the rings
   // full (24-28 of 33 jobs rejected in 25 FPS playback of the quality
   // room); left to a later keyframe, the ROI is chosen afresh.
-  frontend_.setRefineBudget(refine_.idleWorkers());
+  // A serial run's workers are always idle: its keyframes make every job.
+  if (!ctx_.serial) frontend_.setRefineBudget(refine_.idleWorkers());
   Scheduler& sched = ctx_.sched;
   const int64_t start = ctx_.nowNs();
   sched.frameStarted(start, a.arrival_ns);
-  FrameResult r = frontend_.process(a.frame);
+  Eigen::Isometry3d T_world_given;
+  const bool given = options_.given_pose && options_.given_pose(a.frame, T_world_given);
+  FrameResult r = frontend_.process(a.frame, given ? &T_world_given : nullptr);
   const int64_t end = ctx_.nowNs();
   sched.frameFinished(end, {r.stage_ms[0], r.stage_ms[1], r.stage_ms[2], r.stage_ms[3]},
                       static_cast<double>(end - start) * 1e-6);
@@ -498,8 +492,8 @@ FrameResult FrontendStage::process(const Arrival& a) {
   if (options_.on_frame) {
     const SchedulerCounters c = sched.counters();
     options_.on_frame(r, frontend_,
-                      RunCounters{c.frames_dropped, c.deadline_misses, refine_.counters.done.load(),
-                                  refine_.counters.shed.load(), latency_ms.back()});
+                      RunCounters{c.frames_dropped, ctx_.serial ? 0 : c.deadline_misses,
+                                  refine_.counters.done.load(), refine_.counters.shed.load(), latency_ms.back()});
   }
   return r;
 }
@@ -519,7 +513,7 @@ void FrontendStage::reintegrateIntoSlack(const FrameResult& r) {
   const FeedbackCounters fc = frontend_.feedbackCounters();
   const double cost_ms = fc.reintegrations > 0 ? fc.reintegrate_ms / static_cast<double>(fc.reintegrations)
                                                : 2.0 * std::max(1.0, r.stage_ms[kIntegrate]);
-  if (ctx_.sched.slackMs(ctx_.nowNs()) > 1.5 * cost_ms) frontend_.reintegratePending(1);
+  if (ctx_.slackMs() > 1.5 * cost_ms) frontend_.reintegratePending(1);
 }
 
 void FrontendStage::checkpointIntoSlack() {
@@ -531,7 +525,7 @@ void FrontendStage::checkpointIntoSlack() {
   // The copy's cost as last measured (5 ms before the first).
   const double cost_ms = checkpoint_copy_ms.empty() ? 5.0 : 1.2 * checkpoint_copy_ms.back();
   const bool forced = due_s >= 3.0;
-  if (!forced && ctx_.sched.slackMs(now) < cost_ms) return;
+  if (!forced && ctx_.slackMs() < cost_ms) return;
   MapCheckpoint c;
   c.map = std::make_shared<const alg::TsdfMap>(frontend_.map());
   c.details = frontend_.details();

@@ -15,7 +15,9 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -33,9 +35,18 @@ using Clock = std::chrono::steady_clock;
 
 /// What every stage of one run shares: the scheduler, the trace, the run's
 /// clock, and the flag that ends the background stages.
+///
+/// A serial run (runSerial) calls the same stages one after another on one
+/// thread: every background slice is admitted at once, the slack is
+/// unbounded, and no stage waits (the outputs do not depend on the machine).
 struct RunContext {
-  RunContext(const SchedulerParams& params, TraceRecorder* trace_) : sched(params), trace(trace_), t0(Clock::now()) {}
+  RunContext(const SchedulerParams& params, TraceRecorder* trace_, bool serial_ = false)
+      : sched(params), trace(trace_), t0(Clock::now()), serial(serial_) {}
   int64_t nowNs() const { return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t0).count(); }
+  /// The scheduler's verdict on a background slice (serial: run it).
+  Verdict admit(JobTicket& ticket) { return serial ? Verdict::kRun : sched.admitSlice(ticket, nowNs()); }
+  /// Predicted slack before the next frame (serial: unbounded).
+  double slackMs() const { return serial ? std::numeric_limits<double>::infinity() : sched.slackMs(nowNs()); }
   /// Sleeps until a frame ends after `epoch` was read, unless the
   /// background stages are stopping (read `epoch` first, as for a Doorbell).
   void waitForFrameEnd(uint64_t epoch) const {
@@ -50,6 +61,7 @@ struct RunContext {
   Scheduler sched;
   TraceRecorder* trace;
   Clock::time_point t0;
+  const bool serial;
   std::atomic<bool> stopping{false};
 };
 
@@ -71,6 +83,10 @@ class SensorStage {
   /// Starts reading once `go` is set (the frontend has warmed up).
   void start(const std::atomic<bool>& stop, const std::atomic<bool>& go);
   void join() { thread_.join(); }
+  /// The next frame from the source, stamped with its arrival; nothing at
+  /// the end of the stream, once `stop` is set, or when the source failed
+  /// (`error`). The sensor thread, or the serial run's loop.
+  std::optional<Arrival> pull(const std::atomic<bool>& stop);
 
   // Read after join.
   int64_t first_arrival_ns = 0, last_arrival_ns = 0;
@@ -78,6 +94,8 @@ class SensorStage {
 
  private:
   void run(const std::atomic<bool>& stop);
+
+  int64_t pulled_ = 0;
 
   RunContext& ctx_;
   FrameSource& source_;
@@ -110,6 +128,8 @@ class RefineWorker {
   bool offer(RefineJob&& job);
   /// Frontend thread (the calling thread after join).
   bool takeOutcome(RefineOutcome& out) { return outcomes_.tryPop(out); }
+  /// Runs the queued jobs (the worker's thread, or a serial run's loop).
+  void runQueued();
 
  private:
   void run();
@@ -137,8 +157,13 @@ class RefinePool {
   /// Frontend thread: workers with nothing queued or running.
   int idleWorkers() const;
   /// Frontend thread: each job to the next worker with room, or rejected
-  /// (every ring full) and counted.
+  /// (every ring full) and counted. A serial run makes room by running
+  /// the worker's queue first.
   void submit(std::vector<RefineJob> jobs);
+  /// A serial run: every worker's queued jobs, to their end.
+  void runQueued() {
+    for (auto& w : workers_) w->runQueued();
+  }
   /// Frontend thread (the calling thread after join): finished outcomes.
   template <typename Apply>
   void drainOutcomes(Apply&& apply) {
@@ -151,31 +176,9 @@ class RefinePool {
   uint64_t submitted = 0, rejected = 0;  ///< frontend thread
 
  private:
+  RunContext& ctx_;
   std::vector<std::unique_ptr<RefineWorker>> workers_;
   size_t next_ = 0;  ///< frontend thread
-};
-
-/// hx-burn-N: a synthetic CPU load for watching the scheduler shed work
-/// (`--burn-ms`): jobs of fixed slices, resubmitted as soon as one ends or
-/// is shed.
-class BurnLoad {
- public:
-  BurnLoad(RunContext& ctx, int threads, double slice_ms, int slices_per_job, int nice, int first_lane);
-  size_t size() const { return threads_n_; }
-  void start();
-  void join();
-  uint64_t slices() const { return slices_.load(); }
-  double sliceMs() const { return slice_ms_; }
-
- private:
-  void run(int lane);
-
-  RunContext& ctx_;
-  size_t threads_n_;
-  double slice_ms_;
-  int slices_per_job_, nice_, first_lane_;
-  std::atomic<uint64_t> slices_{0};
-  std::vector<std::thread> threads_;
 };
 
 /// hx-feedback: pose feedback (paper 3.4). New keyframes join the sliding
@@ -199,10 +202,14 @@ class FeedbackStage {
   void offer(std::vector<alg::WindowKeyframe> keyframes, Frontend& frontend);
   /// Frontend thread (the calling thread after join).
   bool takeCorrection(KeyframeCorrection& out) { return corrections_.tryPop(out); }
+  /// New keyframes into the window, then the window solved once; false
+  /// when no keyframe came (the feedback thread, or a serial run's loop).
+  bool solveQueued();
+  /// The solver's tally, once the thread is joined or the serial run ends.
+  const FeedbackTally& tally() const { return solver_.tally(); }
 
   std::atomic<uint64_t> keyframes_seen{0}, windows_skipped{0}, windows_shed{0}, corrections_full{0};
   uint64_t keyframes_full = 0;  ///< frontend thread
-  FeedbackTally tally;          ///< feedback thread until joined
 
  private:
   void run();
@@ -211,6 +218,8 @@ class FeedbackStage {
   const Frontend& frontend_;  ///< read only for its refined fields (implicitSurfaces is thread safe)
   alg::FeedbackParams params_;
   int max_effort_, nice_, lane_;
+  FeedbackSolver solver_;  ///< feedback thread until joined
+  std::shared_ptr<const alg::TsdfMap> snapshot_;  ///< the map copy the window is solved on
   SpscRing<FeedbackInput> keyframes_{16};
   SpscRing<KeyframeCorrection> corrections_{64};
   /// Map copies the solver is done with, back to the frontend's thread for
@@ -235,7 +244,9 @@ class LoopStage {
   /// Frontend thread.
   void offer(std::vector<LoopKeyframe> keyframes);
   /// Frontend thread.
-  bool takeCorrection(LoopCorrection& out) { return corrections_.tryPop(out); }
+  bool takeCorrection(LoopCorrection& out);
+  /// A serial run: the queued keyframes in, and every step they make.
+  void stepQueued();
   /// The calling thread, after join: what was still queued or under way is
   /// finished (the graph holds every keyframe and a last closure still
   /// corrects the trajectory written); the closer goes back to `frontend`.
@@ -277,6 +288,13 @@ class FrontendStage {
   /// Refinement outcomes into the map: the frontend thread between frames,
   /// the calling thread once the threads are joined.
   void applyOutcomes();
+  /// One frame: what came back first, the frame, its work handed on, then
+  /// re-integration and checkpoint into the slack (the frontend thread, or
+  /// a serial run's loop).
+  void step(const Arrival& a);
+  /// A serial run, after the background stages ran: what they sent back
+  /// and every re-integration it calls for, before the next frame.
+  void settle();
 
   // Read after join.
   std::vector<double> latency_ms, frontend_ms;

@@ -332,20 +332,4 @@ class Frontend {
   int refine_budget_ = -1;
 };
 
-/// Pose feedback on the calling thread (offline runs, evaluation): after
-/// each frame, new keyframes join the window, the window is solved and its
-/// corrections applied, with every re-integration, before the next frame.
-/// Deterministic. The real-time runner does the same on its feedback
-/// thread.
-class SerialFeedback {
- public:
-  explicit SerialFeedback(const alg::FeedbackParams& params) : solver_(params) {}
-  /// Call after frontend.process(); true when a window was solved.
-  bool step(Frontend& frontend);
-  const FeedbackTally& tally() const { return solver_.tally(); }
-
- private:
-  FeedbackSolver solver_;
-};
-
 }  // namespace hxmap::rt

@@ -24,8 +24,6 @@
 //                 the map around the window made by the frontend's thread.
 //   hx-loop       loop closure, when configured: the loop closer's steps in
 //                 scheduler-admitted slices.
-//   hx-burn-N     with burn_slice_ms (instead of the refinement workers): a
-//                 synthetic CPU load for watching the scheduler shed work.
 // Results flow back to the frontend through rings too (TSDF patches from
 // each worker, keyframe corrections from feedback, loop corrections with
 // their rebuilt maps) and are applied between frames, so the frontend
@@ -88,6 +86,23 @@ class PlaybackSource : public FrameSource {
   int64_t t0_ns_ = 0;
 };
 
+/// Frames already in memory, each handed over as soon as it is asked for
+/// (a serial run's input in tests and benchmarks).
+class FrameList : public FrameSource {
+ public:
+  explicit FrameList(const std::vector<RgbdFrame>& frames) : frames_(frames) {}
+  Expected<std::optional<RgbdFrame>> next(const std::atomic<bool>& stop) override {
+    if (next_ >= frames_.size() || stop.load()) return std::optional<RgbdFrame>{};
+    return std::optional<RgbdFrame>{frames_[next_++]};  // cv::Mat copies share the pixels
+  }
+  double fps() const override { return 30; }
+  size_t size() const override { return frames_.size(); }
+
+ private:
+  const std::vector<RgbdFrame>& frames_;
+  size_t next_ = 0;
+};
+
 /// At most `max_frames` frames of another source (0: all of them), then the
 /// end of the stream: `hxmap run --max-frames` on a live camera.
 class FrameLimit : public FrameSource {
@@ -120,6 +135,21 @@ struct MapCheckpoint {
   Trajectory trajectory;
 };
 
+/// Work of its own beside the stages, on threads it starts, under the run's
+/// scheduler (benchmarks and tests: a CPU burner to watch the scheduler
+/// shed work). Started after the stages; when the run ends `stopping` is
+/// set and the scheduler's waiters are woken, then join() is called.
+class BackgroundLoad {
+ public:
+  virtual ~BackgroundLoad() = default;
+  /// `now_ns`: the run's clock; `trace`: null or the run's trace.
+  virtual void start(Scheduler& sched, std::function<int64_t()> now_ns, const std::atomic<bool>& stopping,
+                     TraceRecorder* trace) = 0;
+  virtual void join() = 0;
+  /// A line for the run report.
+  virtual std::string reportLine() const = 0;
+};
+
 struct RealtimeOptions {
   double fps = 0;             ///< playback rate of a frame vector; 0 = the recorded stamps
   SchedulerParams scheduler;  ///< target_fps is set from the source's rate
@@ -140,10 +170,8 @@ struct RealtimeOptions {
   /// Run Frontend::warmUp on the frontend thread before the sensor thread
   /// reads the first frame.
   bool warm_up = true;
-  /// Inject a CPU-burning refinement load: jobs of slices of this many ms,
-  /// resubmitted as soon as one ends or is shed (0 = none).
-  double burn_slice_ms = 0;
-  int burn_slices_per_job = 20;
+  /// Extra background work under the scheduler (not owned; null: none).
+  BackgroundLoad* extra_load = nullptr;
   double status_interval_s = 0.5;  ///< status line period; 0 = none
   /// Called on hx-frontend after each frame, between frames (e.g. to
   /// publish the pose and map): it may read the frontend, and its time is
@@ -155,6 +183,13 @@ struct RealtimeOptions {
   /// and written on another thread).
   double checkpoint_s = 0;
   std::function<void(MapCheckpoint&&)> on_checkpoint;
+  /// Called on hx-frontend for each refinement outcome it applies.
+  std::function<void(const RefineOutcome&)> on_refined;
+  /// A pose to fuse a frame at instead of tracking it (true: `T_world_cam`
+  /// set), e.g. the ground truth; null: every frame is tracked.
+  std::function<bool(const RgbdFrame&, Eigen::Isometry3d& T_world_cam)> given_pose;
+  /// Checked before each frame of a serial run: true ends it as `stop` does.
+  std::function<bool()> should_stop;
 };
 
 struct RealtimeStats {
@@ -163,7 +198,7 @@ struct RealtimeStats {
   double fps = 0;                                 ///< frames processed per second of playback
   double latency_p50_ms = 0, latency_p99_ms = 0;  ///< arrival to pose
   double frontend_p50_ms = 0, frontend_p99_ms = 0;
-  uint64_t burn_slices_run = 0, keyframes_to_feedback = 0, feedback_ring_full = 0;
+  uint64_t keyframes_to_feedback = 0, feedback_ring_full = 0;
   uint64_t patches_applied = 0, corrections_applied = 0;  ///< results applied between frames
   /// Pose feedback: windows solved, skipped (effort 0), cut short (shed);
   /// keyframe corrections sent to the frontend.
@@ -180,6 +215,7 @@ struct RealtimeStats {
   bool stopped_early = false;
   std::string source_error;  ///< why the source ended early (empty: it ran out or was stopped)
   std::string report;        ///< the final table
+  FeedbackTally feedback;    ///< pose feedback's solves (empty when off)
   std::vector<FrameResult> results;
 };
 
@@ -193,6 +229,17 @@ void traceFrameStages(TraceRecorder& trace, const FrameResult& result, int64_t s
 RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const RealtimeOptions& options,
                           const std::atomic<bool>& stop, TraceRecorder* trace = nullptr,
                           const std::function<void()>& heartbeat = {});
+
+/// The same stages as runRealtime, one after another on the calling thread:
+/// each frame is read when the previous one and all the work it made
+/// (refinement jobs to their iteration cap, the pose-feedback window, loop
+/// closure's steps) are done and applied. No wall-clock budget and no
+/// scheduler verdict: the same input gives the same outputs on any machine
+/// under any load (offline runs). Ends when the source does, fails, `stop`
+/// is set or options.should_stop says so; the fps, warm-up, status line
+/// and background_nice options do not apply.
+RealtimeStats runSerial(FrameSource& source, Frontend& frontend, const RealtimeOptions& options,
+                        const std::atomic<bool>& stop, TraceRecorder* trace = nullptr);
 
 /// Plays `frames` (already loaded; stamps give the recorded rate, or
 /// options.fps) through the threads.
