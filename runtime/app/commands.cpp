@@ -460,7 +460,6 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   }
   RealtimeOptions ro;
   ro.fps = o.fps;
-  ro.burn_slice_ms = o.burn_ms;
   ro.refine_workers = c.runtime.refine_workers;
   ro.background_nice = c.runtime.background_nice;
   ro.loop_parallel = makeParallelFor(c.runtime.threads);

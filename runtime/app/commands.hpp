@@ -25,7 +25,6 @@ struct RunOptions {
   std::string trace;         ///< Chrome trace JSON of per-frame stage timings; empty = none
   bool realtime = false;     ///< play at the recorded rate through the runtime's threads
   double fps = 0;            ///< with realtime: playback rate (0 = recorded stamps)
-  double burn_ms = 0;        ///< with realtime: inject CPU-burning refinement slices of this many ms
   std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
   bool dds = false;          ///< publish over DDS (also dds.enabled in the configuration)
   /// Intrinsics by name (fr1, fr2, fr3, kinect) for a dataset that carries

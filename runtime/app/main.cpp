@@ -52,10 +52,6 @@ int main(int argc, char** argv) {
                     "play the dataset at its recorded rate through the runtime threads (frames load first)");
   run_cmd->add_option("--fps", run.fps, "with --realtime: playback rate instead of the recorded stamps")
       ->check(CLI::Range(0.1, 1000.0));
-  run_cmd
-      ->add_option("--burn-ms", run.burn_ms,
-                   "with --realtime: inject a CPU-burning refinement job with slices of this many ms")
-      ->check(CLI::Range(0.0, 10000.0));
   run_cmd->add_option("--save-quality", run.save_quality,
                       "folder for quality indicator images per keyframe, ROI boxes (rois.ply) and block scores");
   run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");

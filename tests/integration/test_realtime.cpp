@@ -8,6 +8,7 @@
 #include <mutex>
 #include <thread>
 
+#include "burn_load.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 
 #include "hxmap/dataset/synthetic.hpp"
@@ -107,15 +108,16 @@ TEST_F(RealtimeTest, FrameLimitEndsTheStreamAfterItsFrames) {
 }
 
 TEST_F(RealtimeTest, ABurningJobLargerThanAnyPeriodNeverRuns) {
-  options_.burn_slice_ms = 200;  // four 50 ms periods: never fits
-  options_.refine_workers = 2;
+  test::BurnLoad burn(2, 200);  // four 50 ms periods: never fits
+  options_.extra_load = &burn;
+  options_.refine_workers = 0;
   FrontendParams p;
   p.feedback.enabled = false;  // its slices would count too
   p.loop_closure.enabled = false;  // so would the loop closer's
   Frontend fe(cam_, p);
   fe.setInitialPose(T0_);
   const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
-  EXPECT_EQ(s.burn_slices_run, 0u) << s.report;
+  EXPECT_EQ(burn.slices(), 0u) << s.report;
   EXPECT_EQ(s.counters.slices_admitted, 0u);
   EXPECT_GT(s.counters.jobs_submitted, 0u);
   EXPECT_EQ(s.counters.frames_processed + s.counters.frames_dropped, s.counters.frames_in);
