@@ -458,13 +458,7 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
     }
     loading.update(k + 1);
   }
-  RealtimeOptions ro;
-  ro.fps = o.fps;
-  ro.refine_workers = c.runtime.refine_workers;
-  ro.background_nice = c.runtime.background_nice;
-  ro.loop_parallel = makeParallelFor(c.runtime.threads);
-  ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
-  ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+  RealtimeOptions ro = realtimeOptions(c, o.fps);
   // Each pose to disk as it is published (a killed run keeps them all).
   ro.on_frame = [&p](const FrameResult& r, [[maybe_unused]] const Frontend& f,
                      [[maybe_unused]] const RunCounters& counters) {
@@ -1071,6 +1065,17 @@ int configCommand(const std::string& config) {
   }
   std::fputs(dumpConfig(*c).c_str(), stdout);
   return 0;
+}
+
+RealtimeOptions realtimeOptions(const HxmapConfig& c, double fps) {
+  RealtimeOptions ro;
+  ro.fps = fps;
+  ro.refine_workers = c.runtime.refine_workers;
+  ro.background_nice = c.runtime.background_nice;
+  ro.loop_parallel = makeParallelFor(c.runtime.threads);
+  ro.scheduler.margin_ms = c.runtime.deadline_margin_ms;
+  ro.scheduler.shed_after_periods = c.runtime.shed_after_periods;
+  return ro;
 }
 
 FrontendParams frontendParams(const HxmapConfig& c) {

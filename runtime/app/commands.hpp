@@ -7,6 +7,7 @@
 
 #include "hxmap/config/config.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/realtime/realtime.hpp"
 #include "hxmap/sync/sync.hpp"
 
 namespace hxmap::rt {
@@ -81,6 +82,10 @@ int runReportingExceptions(const std::function<int()>& command);
 
 /// The frontend's parameters from a configuration (what `hxmap run` uses).
 FrontendParams frontendParams(const HxmapConfig& config);
+
+/// A real-time run's options from a configuration (`hxmap run --realtime`):
+/// workers, niceness, the loop closer's pool and the scheduler's margins.
+RealtimeOptions realtimeOptions(const HxmapConfig& config, double fps);
 
 /// A live camera pair's calibration from the rig: section.
 drv::RigCalibration rigCalibration(const HxmapConfig& config);
