@@ -37,6 +37,7 @@
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/realtime/realtime.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
+#include "quality_room_sequence.hpp"
 #include "test_data.hpp"
 
 using namespace hxmap;
@@ -225,24 +226,13 @@ int main(int argc, char** argv) {
   }
 
   // 2. The TUM slice at its recorded rate, without and with publishing.
-  drv::DatasetOptions dopt;
-  auto ds = drv::Dataset::open(tum_dir, dopt);
-  if (!ds) {
-    fmt::print(stderr, "{}\n", ds.message());
-    return 1;
-  }
-  std::vector<RgbdFrame> frames;
-  for (size_t i = 0; i < (*ds)->size(); ++i) {
-    auto f = (*ds)->load(i);
-    if (!f) {
-      fmt::print(stderr, "{}\n", f.message());
-      return 1;
-    }
-    frames.push_back(std::move(*f));
-  }
+  test::BenchSequence sequence;
+  if (!test::loadDatasetSequence(tum_dir, sequence) || sequence.frames.empty()) return 1;
+  const std::vector<RgbdFrame>& frames = sequence.frames;
   const double sequence_s = static_cast<double>(frames.back().stamp_ns - frames.front().stamp_ns) * 1e-9;
   Eigen::Isometry3d T0 = Eigen::Isometry3d::Identity();
-  if (!(*ds)->groundTruth().empty()) (void)alg::interpolatePose((*ds)->groundTruth(), frames[0].stamp_ns, 200'000'000, T0);
+  if (!sequence.ground_truth.empty())
+    (void)alg::interpolatePose(sequence.ground_truth, frames[0].stamp_ns, 200'000'000, T0);
   std::atomic<bool> stop{false};
   RealtimeOptions ro;
   ro.status_interval_s = 0;
@@ -250,7 +240,7 @@ int main(int argc, char** argv) {
   auto frontendMs = [](const RealtimeStats& s) { return s.frontend_p50_ms; };
   fmt::print("TUM slice: {} frames, {:.2f} s at the recorded rate\n", frames.size(), sequence_s);
   for (int run = 0; run < 2; ++run) {
-    Frontend frontend((*ds)->camera(), frontendParams(config));
+    Frontend frontend(sequence.camera, frontendParams(config));
     frontend.setInitialPose(T0);
     if (run == 0) {
       const RealtimeStats s = runRealtime(frames, frontend, ro, stop);

@@ -18,10 +18,10 @@
 
 #include "burn_load.hpp"
 #include "commands.hpp"
-#include "hxmap/dataset/dataset.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/realtime/realtime.hpp"
 #include "parallel.hpp"
+#include "quality_room_sequence.hpp"
 #include "test_data.hpp"
 
 using namespace hxmap;
@@ -89,21 +89,10 @@ int main(int argc, char** argv) {
     }
     config = *c;
   }
-  auto ds = drv::Dataset::open(dir, drv::DatasetOptions{});
-  if (!ds) {
-    fmt::print(stderr, "{}\n", ds.message());
-    return 1;
-  }
-  std::vector<RgbdFrame> frames;
-  for (size_t i = 0; i < (*ds)->size(); ++i) {
-    auto f = (*ds)->load(i);
-    if (!f) {
-      fmt::print(stderr, "{}\n", f.message());
-      return 1;
-    }
-    frames.push_back(std::move(*f));
-  }
-  const Trajectory& gt = (*ds)->groundTruth();
+  test::BenchSequence sequence;
+  if (!test::loadDatasetSequence(dir, sequence) || sequence.frames.empty()) return 1;
+  const std::vector<RgbdFrame>& frames = sequence.frames;
+  const Trajectory& gt = sequence.ground_truth;
   Eigen::Isometry3d T_world_cam0 = Eigen::Isometry3d::Identity();
   if (!gt.empty()) (void)alg::interpolatePose(gt, frames[0].stamp_ns, 200'000'000, T_world_cam0);
   fmt::print("{}: {} frames at {:.0f} FPS; {} run(s) per mode, alternating; burner: {} thread(s) of {:.0f} ms slices\n",
@@ -117,7 +106,7 @@ int main(int argc, char** argv) {
       ro.status_interval_s = 0;
       test::BurnLoad load(burn_threads, burn_ms);
       if (burn) ro.extra_load = &load;
-      Frontend frontend((*ds)->camera(), frontendParams(config),
+      Frontend frontend(sequence.camera, frontendParams(config),
                         makeParallelFor(config.runtime.threads));  // as hxmap run
       frontend.setInitialPose(T_world_cam0);
       const RealtimeStats s = runRealtime(frames, frontend, ro, stop);

@@ -30,14 +30,12 @@ inline bool loadDatasetSequence(const std::string& dir, BenchSequence& out) {
   }
   out.camera = (*ds)->camera();
   out.ground_truth = (*ds)->groundTruth();
-  for (size_t i = 0; i < (*ds)->size(); ++i) {
-    auto f = (*ds)->load(i);
-    if (!f) {
-      std::fprintf(stderr, "%s\n", f.message().c_str());
-      return false;
-    }
-    out.frames.push_back(std::move(*f));
+  auto frames = (*ds)->loadAll();
+  if (!frames) {
+    std::fprintf(stderr, "%s\n", frames.message().c_str());
+    return false;
   }
+  out.frames = std::move(*frames);
   return true;
 }
 

@@ -478,6 +478,17 @@ Status Dataset::finishCamera(const DatasetOptions& options) {
   return Status::ok();
 }
 
+Expected<std::vector<RgbdFrame>> Dataset::loadAll() const {
+  std::vector<RgbdFrame> frames;
+  frames.reserve(size());
+  for (size_t i = 0; i < size(); ++i) {
+    auto f = load(i);
+    if (!f) return Error{f.message()};
+    frames.push_back(std::move(*f));
+  }
+  return frames;
+}
+
 Expected<RgbdFrame> Dataset::load(size_t i) const {
   const FrameFiles& f = frames_.at(i);
   auto rgb = readImage(f.rgb_path, f.rgb_ref, false);

@@ -70,6 +70,9 @@ class Dataset {
   /// Reads and validates frame i (0 <= i < size()). Errors name the file and
   /// the list line that referenced it.
   Expected<RgbdFrame> load(size_t i) const;
+  /// Every frame in order (benchmarks, tests); the first unreadable one is
+  /// the error.
+  Expected<std::vector<RgbdFrame>> loadAll() const;
 
  private:
   struct FrameFiles {
