@@ -432,6 +432,159 @@ void PoseWindow::marginalizeOldest(const FeedbackMaps& maps) {
   slots_.erase(slots_.begin());
 }
 
+void PoseWindow::explore(size_t j, std::vector<Eigen::Vector2i>& extra) {
+  const cv::Mat& usable = slots_[j].usable;
+  int tries = 0;
+  const int want = static_cast<int>(extra.size()) + params_.explore_pixels;
+  while (static_cast<int>(extra.size()) < want && tries++ < 8 * std::max(1, params_.explore_pixels)) {
+    const int u = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.cols - 2)));
+    const int v = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.rows - 2)));
+    if (usable.at<uint8_t>(v, u)) extra.emplace_back(u, v);
+  }
+}
+
+void PoseWindow::castBase(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, KfEval& e) const {
+  auto hits = std::make_shared<std::vector<CachedHit>>();
+  e.base = linearizeSamples(j, T_world_kf, maps, slots_[j].base_samples, nullptr, hits.get());
+  e.base_hits = std::move(hits);
+}
+
+void PoseWindow::castExtra(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, KfEval& e) const {
+  auto hits = std::make_shared<std::vector<CachedHit>>();
+  e.extra = linearizeSamples(j, T_world_kf, maps, slots_[j].extra_samples, &e.extra_pixels, hits.get());
+  e.extra_hits = std::move(hits);
+}
+
+PoseWindow::KfEval PoseWindow::onPlanes(size_t j, const Eigen::Isometry3d& T_world_kf, const KfEval& from) const {
+  static const std::vector<CachedHit> kNone;
+  KfEval e;
+  e.base = linearizeCached(j, T_world_kf, slots_[j].base_samples, from.base_hits ? *from.base_hits : kNone, nullptr);
+  e.extra = linearizeCached(j, T_world_kf, slots_[j].extra_samples, from.extra_hits ? *from.extra_hits : kNone,
+                            &e.extra_pixels);
+  e.base_hits = from.base_hits;
+  e.extra_hits = from.extra_hits;
+  return e;
+}
+
+double PoseWindow::assemble(const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
+                            Eigen::VectorXd* b, ChannelStats& stats) const {
+  const size_t n = keyframes_.size();
+  const int dim = static_cast<int>(6 * n);
+  stats = ChannelStats{};
+  double cost = 0;
+  if (H) {
+    H->setZero(dim, dim);
+    b->setZero(dim);
+  }
+  for (size_t j = 0; j < n; ++j) {
+    for (const Linearization* L : {&ev[j].base, &ev[j].extra}) {
+      cost += L->cost;
+      stats.photo_explicit += L->counts.photo_explicit;
+      stats.depth_explicit += L->counts.depth_explicit;
+      stats.photo_implicit += L->counts.photo_implicit;
+      stats.depth_implicit += L->counts.depth_implicit;
+      if (H) {
+        H->block<6, 6>(static_cast<int>(6 * j), static_cast<int>(6 * j)) += L->H;
+        b->segment<6>(static_cast<int>(6 * j)) += L->b;
+      }
+    }
+  }
+  for (size_t j = 0; j + 1 < n; ++j) {
+    Eigen::Matrix<double, 12, 12> Hr;
+    Eigen::Matrix<double, 12, 1> br;
+    const double c = relativeFactor(j, x[j], x[j + 1], H ? &Hr : nullptr, H ? &br : nullptr);
+    cost += c;
+    if (H) {
+      const int o = static_cast<int>(6 * j);
+      H->block<12, 12>(o, o) += Hr;
+      b->segment<12>(o) += br;
+    }
+  }
+  Matrix6d Hp;
+  Vector6d bp;
+  cost += priorCost(x[0], H ? &Hp : nullptr, H ? &bp : nullptr);
+  if (H && has_prior_) {
+    H->block<6, 6>(0, 0) += Hp;
+    b->segment<6>(0) += bp;
+  }
+  stats.cost = cost;
+  return cost;
+}
+
+double PoseWindow::baseCost(const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev) const {
+  const size_t n = keyframes_.size();
+  double c = 0;
+  for (size_t j = 0; j < n; ++j) c += ev[j].base.cost;
+  for (size_t j = 0; j + 1 < n; ++j) c += relativeFactor(j, x[j], x[j + 1], nullptr, nullptr);
+  return c + priorCost(x[0], nullptr, nullptr);
+}
+
+bool PoseWindow::nextPixelSets(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, bool recast,
+                               KfEval& e) {
+  Slot& s = slots_[j];
+  std::vector<size_t> order(s.extra_samples.size());
+  for (size_t k = 0; k < order.size(); ++k) order[k] = k;
+  const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, params_.top_pixels)));
+  std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
+                    [&](size_t a, size_t c) { return e.extra_pixels[a].residual > e.extra_pixels[c].residual; });
+  std::vector<Eigen::Vector2i> next;
+  std::vector<size_t> kept;  // old extra index of each top pixel
+  for (size_t k = 0; k < keep; ++k) {
+    const PixelSample& px = s.extra_samples[order[k]];
+    if (e.extra_pixels[order[k]].residual > 0) {
+      next.emplace_back(px.u, px.v);
+      kept.push_back(order[k]);
+    }
+  }
+  const size_t n_top = next.size();
+  s.extra = std::move(next);
+  explore(j, s.extra);
+  s.extra_samples = gather(j, s.extra);
+  if (recast) {
+    castBase(j, T_world_kf, maps, e);
+    castExtra(j, T_world_kf, maps, e);
+    return true;
+  }
+  // Between casts the top pixels keep their hits: only the explore pixels
+  // are cast.
+  auto hits = std::make_shared<std::vector<CachedHit>>();
+  if (e.extra_hits) {
+    std::vector<int> new_index(e.extra_pixels.size(), -1);
+    for (size_t k = 0; k < n_top && k < s.extra_samples.size(); ++k) new_index[kept[k]] = static_cast<int>(k);
+    for (const CachedHit& h : *e.extra_hits) {
+      if (h.sample < new_index.size() && new_index[h.sample] >= 0) {
+        hits->push_back(h);
+        hits->back().sample = static_cast<uint32_t>(new_index[h.sample]);
+      }
+    }
+  }
+  const std::vector<PixelSample> fresh(
+      s.extra_samples.begin() + static_cast<std::ptrdiff_t>(std::min(n_top, s.extra_samples.size())),
+      s.extra_samples.end());
+  std::vector<CachedHit> fresh_hits;
+  linearizeSamples(j, T_world_kf, maps, fresh, nullptr, &fresh_hits);
+  for (CachedHit& h : fresh_hits) {
+    h.sample += static_cast<uint32_t>(n_top);
+    hits->push_back(h);
+  }
+  e.extra = linearizeCached(j, T_world_kf, s.extra_samples, *hits, &e.extra_pixels);
+  e.extra_hits = std::move(hits);
+  return false;
+}
+
+std::vector<Matrix6d> PoseWindow::marginalInformation(const Eigen::MatrixXd& H) const {
+  const int dim = static_cast<int>(H.rows());
+  Eigen::MatrixXd Hr = H;
+  for (int k = 0; k < dim; ++k) Hr(k, k) += 1e-9 * std::max(1.0, Hr(k, k));
+  const Eigen::MatrixXd cov = Hr.ldlt().solve(Eigen::MatrixXd::Identity(dim, dim));
+  std::vector<Matrix6d> info;
+  for (int j = 0; 6 * j < dim; ++j) {
+    const Matrix6d S = cov.block<6, 6>(6 * j, 6 * j);
+    info.push_back(S.allFinite() ? Matrix6d(S.ldlt().solve(Matrix6d::Identity())) : Matrix6d::Zero());
+  }
+  return info;
+}
+
 SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool()>& stop) {
   SolveReport rep;
   const size_t n = keyframes_.size();
@@ -442,94 +595,12 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   }
   const FeedbackParams& p = params_;
   const int dim = static_cast<int>(6 * n);
-
   // Fresh extra pixels: the previous top set plus a uniform explore set.
-  auto explore = [&](size_t j, std::vector<Eigen::Vector2i>& extra) {
-    const cv::Mat& usable = slots_[j].usable;
-    int tries = 0;
-    const int want = static_cast<int>(extra.size()) + p.explore_pixels;
-    while (static_cast<int>(extra.size()) < want && tries++ < 8 * std::max(1, p.explore_pixels)) {
-      const int u = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.cols - 2)));
-      const int v = 1 + static_cast<int>(nextRandom(rng_state_) % static_cast<uint64_t>(std::max(1, usable.rows - 2)));
-      if (slots_[j].usable.at<uint8_t>(v, u)) extra.emplace_back(u, v);
-    }
-  };
   for (size_t j = 0; j < n; ++j) {
     slots_[j].extra.clear();
     explore(j, slots_[j].extra);
     slots_[j].extra_samples = gather(j, slots_[j].extra);
   }
-
-  struct KfEval {
-    Linearization base, extra;
-    std::vector<PixelResult> extra_pixels;
-    std::shared_ptr<const std::vector<CachedHit>> base_hits, extra_hits;  // shared by trials
-  };
-  // Casting the rays into the maps (the costly evaluation).
-  auto evalBase = [&](size_t j, const Eigen::Isometry3d& T_world_kf, KfEval& e) {
-    auto hits = std::make_shared<std::vector<CachedHit>>();
-    e.base = linearizeSamples(j, T_world_kf, maps, slots_[j].base_samples, nullptr, hits.get());
-    e.base_hits = std::move(hits);
-    ++rep.evaluations;
-  };
-  auto evalExtra = [&](size_t j, const Eigen::Isometry3d& T_world_kf, KfEval& e) {
-    auto hits = std::make_shared<std::vector<CachedHit>>();
-    e.extra = linearizeSamples(j, T_world_kf, maps, slots_[j].extra_samples, &e.extra_pixels, hits.get());
-    e.extra_hits = std::move(hits);
-  };
-  // The same from the hits of `from` (their tangent planes), no casting.
-  auto evalCached = [&](size_t j, const Eigen::Isometry3d& T_world_kf, const KfEval& from, KfEval& e) {
-    static const std::vector<CachedHit> kNone;
-    e.base = linearizeCached(j, T_world_kf, slots_[j].base_samples, from.base_hits ? *from.base_hits : kNone, nullptr);
-    e.extra = linearizeCached(j, T_world_kf, slots_[j].extra_samples, from.extra_hits ? *from.extra_hits : kNone,
-                              &e.extra_pixels);
-    e.base_hits = from.base_hits;
-    e.extra_hits = from.extra_hits;
-  };
-  // The whole objective and its normal equations at poses x.
-  auto assemble = [&](const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
-                      Eigen::VectorXd* b, ChannelStats& stats) {
-    stats = ChannelStats{};
-    double cost = 0;
-    if (H) {
-      H->setZero(dim, dim);
-      b->setZero(dim);
-    }
-    for (size_t j = 0; j < n; ++j) {
-      for (const Linearization* L : {&ev[j].base, &ev[j].extra}) {
-        cost += L->cost;
-        stats.photo_explicit += L->counts.photo_explicit;
-        stats.depth_explicit += L->counts.depth_explicit;
-        stats.photo_implicit += L->counts.photo_implicit;
-        stats.depth_implicit += L->counts.depth_implicit;
-        if (H) {
-          H->block<6, 6>(static_cast<int>(6 * j), static_cast<int>(6 * j)) += L->H;
-          b->segment<6>(static_cast<int>(6 * j)) += L->b;
-        }
-      }
-    }
-    for (size_t j = 0; j + 1 < n; ++j) {
-      Eigen::Matrix<double, 12, 12> Hr;
-      Eigen::Matrix<double, 12, 1> br;
-      const double c = relativeFactor(j, x[j], x[j + 1], H ? &Hr : nullptr, H ? &br : nullptr);
-      cost += c;
-      if (H) {
-        const int o = static_cast<int>(6 * j);
-        H->block<12, 12>(o, o) += Hr;
-        b->segment<12>(o) += br;
-      }
-    }
-    Matrix6d Hp;
-    Vector6d bp;
-    cost += priorCost(x[0], H ? &Hp : nullptr, H ? &bp : nullptr);
-    if (H && has_prior_) {
-      H->block<6, 6>(0, 0) += Hp;
-      b->segment<6>(0) += bp;
-    }
-    stats.cost = cost;
-    return cost;
-  };
-
   // The caller's stop is asked before each keyframe's cast and each step
   // (the slices a scheduler admits); once it says stop, the solve keeps the
   // last accepted poses.
@@ -539,12 +610,9 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
   };
   std::vector<Eigen::Isometry3d> x(n);
   for (size_t j = 0; j < n; ++j) x[j] = keyframes_[j].T_world_cam;
-  // DESIGN: a keyframe that was in the previous solve starts from that
-  // solve's last planes for its base pixels (the window is solved again at
-  // every keyframe, and 7 of its 8 keyframes were just solved against
-  // nearly the same map); its extras, and the new keyframe, are cast. The
-  // first recast (after relinearize_every steps) replaces the planes with
-  // the current map's.
+  // A keyframe of the previous solve starts on that solve's last planes for
+  // its base pixels (7 of 8 keyframes were just solved against nearly the
+  // same map); its extras and a new keyframe are cast.
   std::vector<KfEval> ev(n);
   for (size_t j = 0; j < n; ++j) {
     if (halted()) return rep;
@@ -552,29 +620,20 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
       ev[j].base = linearizeCached(j, x[j], slots_[j].base_samples, *slots_[j].base_hits, nullptr);
       ev[j].base_hits = slots_[j].base_hits;
     } else {
-      evalBase(j, x[j], ev[j]);
+      castBase(j, x[j], maps, ev[j]);
+      ++rep.evaluations;
     }
-    evalExtra(j, x[j], ev[j]);
+    castExtra(j, x[j], maps, ev[j]);
   }
   Eigen::MatrixXd H;
   Eigen::VectorXd b;
-  // The objective on the base sets alone (the extras' share left out).
-  auto baseCost = [&](const std::vector<Eigen::Isometry3d>& poses, const std::vector<KfEval>& e) {
-    double c = 0;
-    for (size_t j = 0; j < n; ++j) c += e[j].base.cost;
-    for (size_t j = 0; j + 1 < n; ++j) c += relativeFactor(j, poses[j], poses[j + 1], nullptr, nullptr);
-    return c + priorCost(poses[0], nullptr, nullptr);
-  };
   double cost = assemble(x, ev, &H, &b, rep.before);
   rep.after = rep.before;
   rep.base_cost_before = rep.base_cost_after = baseCost(x, ev);
   double mu = p.lm_initial_damping;
-  // DESIGN: a trial step is judged, and the next step linearized, on the
-  // tangent planes of the last cast (the model the Jacobians describe);
-  // the rays are cast again every relinearize_every accepted steps, and the
-  // new explore pixels after each. Casting at every trial was 80% of the
-  // solve; the planes move with the surface to well under a millimetre
-  // for the step sizes of a window (millimetres).
+  // Trial steps are judged, and the next step linearized, on the tangent
+  // planes of the last cast; rays are cast again every relinearize_every
+  // accepted steps (casting at every trial was 80 % of the solve).
   int since_cast = 0;
   const int recast_every = std::max(1, p.relinearize_every);
   for (int it = 0; it < p.iterations && !halted(); ++it) {
@@ -586,113 +645,49 @@ SolveReport PoseWindow::solve(const FeedbackMaps& maps, const std::function<bool
     std::vector<Eigen::Isometry3d> x_try(n);
     for (size_t j = 0; j < n; ++j) x_try[j] = x[j] * expSE3(delta.segment<6>(static_cast<int>(6 * j)));
     std::vector<KfEval> ev_try(n);
-    for (size_t j = 0; j < n; ++j) evalCached(j, x_try[j], ev[j], ev_try[j]);
+    for (size_t j = 0; j < n; ++j) ev_try[j] = onPlanes(j, x_try[j], ev[j]);
     ChannelStats st;
-    const double cost_try = assemble(x_try, ev_try, nullptr, nullptr, st);
-    if (cost_try < cost) {
-      ++rep.accepted;
-      x = x_try;
-      ev = std::move(ev_try);
-      mu = std::max(mu / 3.0, 1e-9);
-      const bool converged = delta.lpNorm<Eigen::Infinity>() < 1e-7;
-      if (it + 1 < p.iterations && !converged) {
-        // Omega for the next iteration: the base, the largest residuals of
-        // this one (among the extras: the base is there already), a fresh
-        // explore set; the new extras cast at the accepted poses, and every
-        // recast_every steps the base too.
-        const bool recast = ++since_cast >= recast_every;
-        for (size_t j = 0; j < n && !halted(); ++j) {
-          Slot& s = slots_[j];
-          std::vector<size_t> order(s.extra_samples.size());
-          for (size_t k = 0; k < order.size(); ++k) order[k] = k;
-          const size_t keep = std::min(order.size(), static_cast<size_t>(std::max(0, p.top_pixels)));
-          std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep), order.end(),
-                            [&](size_t a, size_t c) { return ev[j].extra_pixels[a].residual > ev[j].extra_pixels[c].residual; });
-          std::vector<Eigen::Vector2i> next;
-          std::vector<size_t> kept;  // old extra index of each top pixel
-          for (size_t k = 0; k < keep; ++k) {
-            const PixelSample& px = s.extra_samples[order[k]];
-            if (ev[j].extra_pixels[order[k]].residual > 0) {
-              next.emplace_back(px.u, px.v);
-              kept.push_back(order[k]);
-            }
-          }
-          const size_t n_top = next.size();
-          s.extra = std::move(next);
-          explore(j, s.extra);
-          s.extra_samples = gather(j, s.extra);
-          if (recast) {
-            evalBase(j, x[j], ev[j]);
-            evalExtra(j, x[j], ev[j]);
-            continue;
-          }
-          // Between casts the top pixels keep their hits: only the explore
-          // pixels are cast.
-          auto hits = std::make_shared<std::vector<CachedHit>>();
-          if (ev[j].extra_hits) {
-            std::vector<int> new_index(ev[j].extra_pixels.size(), -1);
-            for (size_t k = 0; k < n_top && k < s.extra_samples.size(); ++k) new_index[kept[k]] = static_cast<int>(k);
-            for (const CachedHit& h : *ev[j].extra_hits) {
-              if (h.sample < new_index.size() && new_index[h.sample] >= 0) {
-                hits->push_back(h);
-                hits->back().sample = static_cast<uint32_t>(new_index[h.sample]);
-              }
-            }
-          }
-          const std::vector<PixelSample> fresh(s.extra_samples.begin() + static_cast<std::ptrdiff_t>(std::min(n_top, s.extra_samples.size())),
-                                               s.extra_samples.end());
-          std::vector<CachedHit> fresh_hits;
-          linearizeSamples(j, x[j], maps, fresh, nullptr, &fresh_hits);
-          for (CachedHit& h : fresh_hits) {
-            h.sample += static_cast<uint32_t>(n_top);
-            hits->push_back(h);
-          }
-          ev[j].extra = linearizeCached(j, x[j], s.extra_samples, *hits, &ev[j].extra_pixels);
-          ev[j].extra_hits = std::move(hits);
-        }
-        if (recast) since_cast = 0;
-        if (rep.stopped) {
-          // x is accepted. The keyframes the update reached have their new
-          // pixel sets, the rest their old ones, each with its evaluation
-          // at x: the report below is consistent either way.
-          break;
-        }
-      }
-      cost = assemble(x, ev, &H, &b, st);
-      if (converged) break;
-    } else {
+    if (!(assemble(x_try, ev_try, nullptr, nullptr, st) < cost)) {  // NaN refused too
       mu *= 4.0;
+      continue;
     }
+    ++rep.accepted;
+    x = x_try;
+    ev = std::move(ev_try);
+    mu = std::max(mu / 3.0, 1e-9);
+    const bool converged = delta.lpNorm<Eigen::Infinity>() < 1e-7;
+    if (it + 1 < p.iterations && !converged) {
+      // Omega for the next iteration, cast at the accepted poses.
+      const bool recast = ++since_cast >= recast_every;
+      for (size_t j = 0; j < n && !halted(); ++j) {
+        if (nextPixelSets(j, x[j], maps, recast, ev[j])) ++rep.evaluations;
+      }
+      if (recast) since_cast = 0;
+      // Stopped: x is accepted, and each keyframe's evaluation (new pixel
+      // set or old) is at x, so the report below is consistent.
+      if (rep.stopped) break;
+    }
+    cost = assemble(x, ev, &H, &b, st);
+    if (converged) break;
   }
   for (size_t j = 0; j < n; ++j) {
     keyframes_[j].T_world_cam = x[j];
     slots_[j].base_hits = ev[j].base_hits;
   }
-  {
-    Eigen::MatrixXd Hr = H;
-    for (int k = 0; k < dim; ++k) Hr(k, k) += 1e-9 * std::max(1.0, Hr(k, k));
-    const Eigen::MatrixXd cov = Hr.ldlt().solve(Eigen::MatrixXd::Identity(dim, dim));
-    for (size_t j = 0; j < n; ++j) {
-      const Matrix6d S = cov.block<6, 6>(static_cast<int>(6 * j), static_cast<int>(6 * j));
-      rep.marginal_information.push_back(S.allFinite() ? Matrix6d(S.ldlt().solve(Matrix6d::Identity())) : Matrix6d::Zero());
-    }
-  }
+  rep.marginal_information = marginalInformation(H);
   assemble(x, ev, nullptr, nullptr, rep.after);  // ev is the evaluation at x
   rep.base_cost_after = baseCost(x, ev);
-  // Before and after on the same planes (the last cast's): the starting
-  // poses evaluated on them, so that the comparison is of poses, not of
-  // casts (the start may have been evaluated on an earlier solve's planes).
-  {
-    std::vector<KfEval> start(n);
-    static const std::vector<CachedHit> kNone;
-    for (size_t j = 0; j < n; ++j) {
-      start[j].base = linearizeCached(j, rep.poses_before[j], slots_[j].base_samples,
-                                      ev[j].base_hits ? *ev[j].base_hits : kNone, nullptr);
-      rep.channels_agree.push_back(ev[j].base.depth_cost <= start[j].base.depth_cost &&
-                                   ev[j].base.photo_cost <= start[j].base.photo_cost);
-    }
-    rep.base_cost_before = baseCost(rep.poses_before, start);
+  // Before and after on the same planes (the last cast's), so that the
+  // comparison is of poses, not of casts.
+  static const std::vector<CachedHit> kNone;
+  std::vector<KfEval> start(n);
+  for (size_t j = 0; j < n; ++j) {
+    start[j].base = linearizeCached(j, rep.poses_before[j], slots_[j].base_samples,
+                                    ev[j].base_hits ? *ev[j].base_hits : kNone, nullptr);
+    rep.channels_agree.push_back(ev[j].base.depth_cost <= start[j].base.depth_cost &&
+                                 ev[j].base.photo_cost <= start[j].base.photo_cost);
   }
+  rep.base_cost_before = baseCost(rep.poses_before, start);
   return rep;
 }
 

@@ -67,147 +67,180 @@ float blend(float old_value, float value, float s, bool first) {
 
 }  // namespace
 
+namespace {
+
+// One keyframe against the model rendered at its pose, sample by sample,
+// pooled per block.
+class KeyframeSampler {
+ public:
+  KeyframeSampler(const TsdfMap& map, const KeyframeView& kf, const QualityParams& params)
+      : map_(map), f_(*kf.frame), m_(*kf.model), cache_(map) {
+    has_normals_ = !f_.normal.empty() && !m_.normal_world.empty();
+    has_model_vertex_ = !m_.vertex_world.empty() && m_.vertex_world.size() == m_.depth.size();
+    has_photo_ = !f_.intensity.empty() && f_.intensity.size() == f_.depth.size() && !m_.vertex_world.empty();
+    mu_ = map.truncation();
+    jump_ = static_cast<float>(params.boundary_jump_ratio);
+    radius_ = std::max(1, params.boundary_radius_px);
+    R_ = kf.T_world_cam.linear();
+    t_ = kf.T_world_cam.translation();
+    inv_bs_ = 1.0f / map.blockSize();
+    cos_good_ = static_cast<float>(std::cos(params.max_view_incidence_deg * M_PI / 180.0));
+    voxel_m_ = map.voxelSize();
+    border_px_m_ = 2.0f * static_cast<float>(f_.camera.fx) * voxel_m_;  // two voxels' footprint at 1 m, in pixels
+    max_depth_ = static_cast<float>(map.params().max_integration_depth_m);
+  }
+
+  /// Pixel (u, v): counted in its block when usable (true).
+  bool sample(int u, int v) {
+    const float z = f_.depth.ptr<float>(v)[u];
+    if (!usable(u, v, z)) return false;
+    const Eigen::Vector3f p_world = R_ * f_.camera.backproject(static_cast<float>(u), static_cast<float>(v), z) + t_;
+    const BlockKey key = blockOf(p_world);
+    if (key != last_key_ || acc_.empty()) {
+      last_slot_ = slotOf(key);
+      last_key_ = key;
+    }
+    BlockSamples& a = acc_[last_slot_];
+    ++a.n;
+    a.boundary_sum += occlusionEdge(u, v, z) ? 1.0f : 0.0f;
+    if (!compare(a, u, v, z)) return true;
+    creditView(key, u, v);  // last: it may grow acc_, which `a` points into
+    return true;
+  }
+
+  const std::vector<BlockSamples>& blocks() const { return acc_; }
+
+ private:
+  BlockKey blockOf(const Eigen::Vector3f& p_world) const {
+    const Eigen::Vector3f q = p_world * inv_bs_;
+    return BlockKey(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()));
+  }
+
+  uint32_t slotOf(const BlockKey& key) {
+    auto [it, inserted] = slot_of_.try_emplace(packBlockKey(key), static_cast<uint32_t>(acc_.size()));
+    if (inserted) acc_.push_back(BlockSamples{key});
+    return it->second;
+  }
+
+  bool usable(int u, int v, float z) const {
+    if (!(z > 0.0f) || !std::isfinite(z)) return false;
+    // Beyond the fusion range the map never holds a surface: a miss there
+    // says nothing about it (counted, the walls of a room larger than 4 m
+    // were the Replica slice's worst blocks).
+    if (z > max_depth_) return false;
+    // Near the image border a rendering's miss says nothing about the map:
+    // voxels at the frustum's edge are seen from inside only, and a
+    // trilinear sample needs all 8 (counted, frontier wall strips ranked
+    // among the worst blocks).
+    if (const float zm0 = m_.depth.ptr<float>(v)[u]; !(zm0 > 0.0f && std::isfinite(zm0))) {
+      const int W = f_.depth.cols, H = f_.depth.rows;
+      const int margin = static_cast<int>(border_px_m_ / z) + 1;
+      if (u < margin || v < margin || u >= W - margin || v >= H - margin) return false;
+    }
+    return true;
+  }
+
+  // Occlusion boundary: a depth jump within `radius` pixels along a row or
+  // a column, on its near side (invalid neighbours are not jumps: holes are
+  // not edges).
+  bool occlusionEdge(int u, int v, float z) const {
+    const int W = f_.depth.cols, H = f_.depth.rows;
+    bool edge = false;
+    for (int r = 1; r <= radius_ && !edge; ++r) {
+      const int nb[4][2] = {{u - r, v}, {u + r, v}, {u, v - r}, {u, v + r}};
+      for (const auto& [uu, vv] : nb) {
+        if (uu < 0 || vv < 0 || uu >= W || vv >= H) continue;
+        const float zn = f_.depth.ptr<float>(vv)[uu];
+        if (zn - z > jump_ * z) edge = true;  // a farther neighbour: this sample occludes it
+      }
+    }
+    return edge;
+  }
+
+  // The keyframe against the model at the pixel: depth mismatch, normal
+  // novelty, color. False where the map shows no surface.
+  bool compare(BlockSamples& a, int u, int v, float z) {
+    const float zm = m_.depth.ptr<float>(v)[u];
+    if (!(zm > 0.0f) || !std::isfinite(zm)) {
+      a.signed_sum -= mu_;
+      a.abs_sum += mu_;
+      return false;
+    }
+    const float e = std::clamp(z - zm, -mu_, mu_);
+    a.signed_sum += e;
+    a.abs_sum += std::abs(e);
+    if (has_normals_) {
+      const cv::Vec3f nf = f_.normal.ptr<cv::Vec3f>(v)[u];
+      const cv::Vec3f nm = m_.normal_world.ptr<cv::Vec3f>(v)[u];
+      if (nf[2] != 0.0f && (nm[0] != 0.0f || nm[1] != 0.0f || nm[2] != 0.0f)) {
+        const Eigen::Vector3f nfw = R_ * Eigen::Vector3f(nf[0], nf[1], nf[2]);
+        a.novelty_sum += 1.0f - std::min(1.0f, std::abs(nfw.dot(Eigen::Vector3f(nm[0], nm[1], nm[2]))));
+        ++a.novelty_n;
+      }
+    }
+    if (has_photo_) {
+      const cv::Vec3f vm = m_.vertex_world.ptr<cv::Vec3f>(v)[u];
+      Eigen::Vector3f rgb;
+      if (cache_.sampleColor(Eigen::Vector3f(vm[0], vm[1], vm[2]), rgb)) {
+        // Gray as the frame's intensity (ITU-R 601 weights, [0, 1]).
+        const float gray = (0.299f * rgb.x() + 0.587f * rgb.y() + 0.114f * rgb.z()) * (1.0f / 255.0f);
+        a.photo_sum += std::abs(f_.intensity.ptr<float>(v)[u] - gray);
+        ++a.photo_n;
+      }
+    }
+    return true;
+  }
+
+  // A usable view of the map's surface (the model's normal against the
+  // pixel's ray), credited to the blocks within half a voxel of the model's
+  // surface point along its normal: a surface on a block's face is the zero
+  // crossing between the voxels on both sides. (The keyframe's own point
+  // and normal scatter with the sensor noise and credited blocks next to a
+  // surface that hold none of it.)
+  void creditView(const BlockKey& key, int u, int v) {
+    if (!has_normals_ || !has_model_vertex_) return;
+    const cv::Vec3f nm = m_.normal_world.ptr<cv::Vec3f>(v)[u];
+    if (nm[0] == 0.0f && nm[1] == 0.0f && nm[2] == 0.0f) return;
+    const Eigen::Vector3f ray = R_ * f_.camera.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
+    if (!(std::abs(nm[0] * ray.x() + nm[1] * ray.y() + nm[2] * ray.z()) >= cos_good_ * ray.norm())) return;
+    const cv::Vec3f vm = m_.vertex_world.ptr<cv::Vec3f>(v)[u];
+    const Eigen::Vector3f pm(vm[0], vm[1], vm[2]), half = (0.5f * voxel_m_) * Eigen::Vector3f(nm[0], nm[1], nm[2]);
+    const BlockKey ka = blockOf(pm - half), kb = blockOf(pm + half);
+    // Mostly the sample's own block (`key`), whose slot is known.
+    ++acc_[ka == key ? last_slot_ : slotOf(ka)].good_n;
+    if (kb != ka) ++acc_[kb == key ? last_slot_ : slotOf(kb)].good_n;
+  }
+
+  const TsdfMap& map_;
+  const FrameLevel& f_;
+  const ModelView& m_;
+  BlockCache cache_;
+  bool has_normals_ = false, has_model_vertex_ = false, has_photo_ = false;
+  float mu_ = 0, jump_ = 0, inv_bs_ = 0, cos_good_ = 0, voxel_m_ = 0, border_px_m_ = 0, max_depth_ = 0;
+  int radius_ = 1;
+  Eigen::Matrix3f R_;
+  Eigen::Vector3f t_;
+  std::vector<BlockSamples> acc_;
+  std::unordered_map<uint64_t, uint32_t> slot_of_;
+  BlockKey last_key_{std::numeric_limits<int>::min(), 0, 0};
+  uint32_t last_slot_ = 0;
+};
+
+}  // namespace
+
 QualityUpdateStats QualityMap::update(const TsdfMap& map, const KeyframeView& kf) {
   QualityUpdateStats stats;
   if (!kf.frame || !kf.model || kf.frame->depth.empty() || kf.frame->depth.size() != kf.model->depth.size()) {
     return stats;
   }
-  const FrameLevel& f = *kf.frame;
-  const ModelView& m = *kf.model;
-  const bool has_normals = !f.normal.empty() && !m.normal_world.empty();
-  const bool has_model_vertex = !m.vertex_world.empty() && m.vertex_world.size() == m.depth.size();
-  const bool has_photo = !f.intensity.empty() && f.intensity.size() == f.depth.size() && !m.vertex_world.empty();
-  const float mu = map.truncation();
-  const float jump = static_cast<float>(params_.boundary_jump_ratio);
-  const int radius = std::max(1, params_.boundary_radius_px);
+  KeyframeSampler sampler(map, kf, params_);
   const int stride = std::max(1, params_.pixel_stride);
-  const int W = f.depth.cols, H = f.depth.rows;
-  const Eigen::Matrix3f R = kf.T_world_cam.linear();
-  const Eigen::Vector3f t = kf.T_world_cam.translation();
-  const float inv_bs = 1.0f / map.blockSize();
-  const float cos_good = static_cast<float>(std::cos(params_.max_view_incidence_deg * M_PI / 180.0));
-  const float voxel_m = map.voxelSize();
-  const float border_px_m =
-      2.0f * static_cast<float>(f.camera.fx) * voxel_m;  // two voxels' footprint at 1 m, in pixels
-  const auto max_depth = static_cast<float>(map.params().max_integration_depth_m);
-
-  std::vector<BlockSamples> acc;
-  std::unordered_map<uint64_t, uint32_t> slot_of;
-  BlockKey last_key(std::numeric_limits<int>::min(), 0, 0);
-  uint32_t last_slot = 0;
-  BlockCache cache(map);
-  auto slotOf = [&](const BlockKey& key) {
-    auto [it, inserted] = slot_of.try_emplace(pack(key), static_cast<uint32_t>(acc.size()));
-    if (inserted) acc.push_back(BlockSamples{key});
-    return it->second;
-  };
-
-  for (int v = stride / 2; v < H; v += stride) {
-    const float* drow = f.depth.ptr<float>(v);
-    const float* mrow = m.depth.ptr<float>(v);
-    for (int u = stride / 2; u < W; u += stride) {
-      const float z = drow[u];
-      if (!(z > 0.0f) || !std::isfinite(z)) continue;
-      // Beyond the fusion range the map never holds a surface: a miss there
-      // says nothing about it. (Counted, the walls of a room larger than 4
-      // m, seen over the whole Replica slice, were its worst blocks.)
-      if (z > max_depth) continue;
-      // DESIGN: near the image border a rendering's miss says nothing about
-      // the map: voxels at the edge of the frustum are observed from inside
-      // it only, and a trilinear sample needs all 8, so the raycast model
-      // lacks about two voxels' footprint of the surface the frame shows
-      // there. Counted as errors (RM, OBG), these made wall strips at the
-      // trajectory's frontier, seen at the edge of a few keyframes, rank
-      // among the worst blocks of a map that is right there (precision at a
-      // 20 % budget 67.5 %, now 74.5 %).
-      if (const float zm0 = mrow[u]; !(zm0 > 0.0f && std::isfinite(zm0))) {
-        const int margin = static_cast<int>(border_px_m / z) + 1;
-        if (u < margin || v < margin || u >= W - margin || v >= H - margin) continue;
-      }
-      const Eigen::Vector3f p_world = R * f.camera.backproject(static_cast<float>(u), static_cast<float>(v), z) + t;
-      const Eigen::Vector3f q = p_world * inv_bs;
-      const BlockKey key(floorToInt(q.x()), floorToInt(q.y()), floorToInt(q.z()));
-      if (key != last_key || acc.empty()) {
-        last_slot = slotOf(key);
-        last_key = key;
-      }
-      BlockSamples& a = acc[last_slot];
-      ++a.n;
-      ++stats.samples;
-
-      // Occlusion boundary: a depth jump within `radius` pixels along a row
-      // or a column, on its near side (invalid neighbours are not jumps:
-      // holes are not edges).
-      bool edge = false;
-      for (int r = 1; r <= radius && !edge; ++r) {
-        const int nb[4][2] = {{u - r, v}, {u + r, v}, {u, v - r}, {u, v + r}};
-        for (const auto& [uu, vv] : nb) {
-          if (uu < 0 || vv < 0 || uu >= W || vv >= H) continue;
-          const float zn = f.depth.ptr<float>(vv)[uu];
-          if (zn - z > jump * z) edge = true;  // a farther neighbour: this sample occludes it
-        }
-      }
-      a.boundary_sum += edge ? 1.0f : 0.0f;
-
-      const float zm = mrow[u];
-      if (!(zm > 0.0f) || !std::isfinite(zm)) {
-        // The map shows no surface where the keyframe has one.
-        a.signed_sum -= mu;
-        a.abs_sum += mu;
-        continue;
-      }
-      const float e = std::clamp(z - zm, -mu, mu);
-      a.signed_sum += e;
-      a.abs_sum += std::abs(e);
-      if (has_normals) {
-        const cv::Vec3f nf = f.normal.ptr<cv::Vec3f>(v)[u];
-        const cv::Vec3f nm = m.normal_world.ptr<cv::Vec3f>(v)[u];
-        if (nf[2] != 0.0f && (nm[0] != 0.0f || nm[1] != 0.0f || nm[2] != 0.0f)) {
-          const Eigen::Vector3f nfw = R * Eigen::Vector3f(nf[0], nf[1], nf[2]);
-          a.novelty_sum += 1.0f - std::min(1.0f, std::abs(nfw.dot(Eigen::Vector3f(nm[0], nm[1], nm[2]))));
-          ++a.novelty_n;
-        }
-      }
-      if (has_photo) {
-        const cv::Vec3f vm = m.vertex_world.ptr<cv::Vec3f>(v)[u];
-        Eigen::Vector3f rgb;
-        if (cache.sampleColor(Eigen::Vector3f(vm[0], vm[1], vm[2]), rgb)) {
-          // Gray as the frame's intensity (ITU-R 601 weights, [0, 1]).
-          const float gray = (0.299f * rgb.x() + 0.587f * rgb.y() + 0.114f * rgb.z()) * (1.0f / 255.0f);
-          a.photo_sum += std::abs(f.intensity.ptr<float>(v)[u] - gray);
-          ++a.photo_n;
-        }
-      }
-      if (has_normals) {
-        const cv::Vec3f nm = m.normal_world.ptr<cv::Vec3f>(v)[u];
-        if (has_model_vertex && (nm[0] != 0.0f || nm[1] != 0.0f || nm[2] != 0.0f)) {
-          // A usable view of the map's surface: the model's normal against
-          // the pixel's ray, credited to the block the model's surface point
-          // lies in. DESIGN: the keyframe's own point and normal scatter
-          // with the sensor noise (a few cm at 3 m with disparity steps), so
-          // they credited views to blocks next to a surface that hold none
-          // of it.
-          const Eigen::Vector3f ray = R * f.camera.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-          if (std::abs(nm[0] * ray.x() + nm[1] * ray.y() + nm[2] * ray.z()) >= cos_good * ray.norm()) {
-            // The view counts for the blocks within half a voxel of the
-            // point along its normal: a surface on a block's face (a floor
-            // at z = 0) is the zero crossing between the voxels of the
-            // blocks on both sides.
-            const cv::Vec3f vm = m.vertex_world.ptr<cv::Vec3f>(v)[u];
-            const Eigen::Vector3f pm(vm[0], vm[1], vm[2]),
-                half = (0.5f * voxel_m) * Eigen::Vector3f(nm[0], nm[1], nm[2]);
-            const Eigen::Vector3f qa = (pm - half) * inv_bs, qb = (pm + half) * inv_bs;
-            const BlockKey ka(floorToInt(qa.x()), floorToInt(qa.y()), floorToInt(qa.z()));
-            const BlockKey kb(floorToInt(qb.x()), floorToInt(qb.y()), floorToInt(qb.z()));
-            // Mostly the sample's own block (`key`), whose slot is known.
-            ++acc[ka == key ? last_slot : slotOf(ka)].good_n;
-            if (kb != ka) ++acc[kb == key ? last_slot : slotOf(kb)].good_n;
-          }
-        }
-      }  // (last: slotOf may grow acc, which `a` points into)
-    }
+  for (int v = stride / 2; v < kf.frame->depth.rows; v += stride) {
+    for (int u = stride / 2; u < kf.frame->depth.cols; u += stride) stats.samples += sampler.sample(u, v) ? 1 : 0;
   }
-
+  const float voxel_m = map.voxelSize();
+  const Eigen::Vector3f t = kf.T_world_cam.translation();
+  const std::vector<BlockSamples>& acc = sampler.blocks();
   const float s = static_cast<float>(std::clamp(params_.smoothing, 0.0, 1.0));
   const uint32_t min_samples = static_cast<uint32_t>(std::max(1, params_.min_samples));
   const float views_needed = static_cast<float>(std::max(1, params_.consolidated_views));

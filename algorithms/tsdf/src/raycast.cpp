@@ -83,6 +83,124 @@ float refineCrossing(BlockCache& cache, const Eigen::Vector3f& origin, const Eig
   return th;
 }
 
+// One pixel's ray in the world: direction, its inverse, and its length per
+// unit of depth (depth z along the optical axis is t / len along the ray).
+struct Ray {
+  Eigen::Vector3f origin, dir, inv_dir;
+  float len = 1;
+};
+
+struct MarchParams {
+  float vs = 0, mu = 0, min_w = 0, step_factor = 1;
+};
+
+// The surface near a predicted depth zh. DESIGN: the prediction is the depth
+// just fused at (nearly) this pose, so the surface is almost always within
+// a voxel of it: trilinear samples 1.5 voxels either side (the truncated
+// SDF is linear there) bracket it, three samples and no march. (A one-voxel
+// bracket saved 0.6 ms per frame but cost tracking accuracy.) `sampled` is
+// false where a sample has no trilinear neighbourhood (the edge of the
+// observed surface, where a march would not find a bracketed crossing
+// either). Returns the hit's t along the ray, or -1.
+float hitNearDepth(BlockCache& cache, const Ray& ray, const MarchParams& mp, float zh, float t_min, bool& sampled) {
+  const float ta = (zh - 1.5f * mp.vs) * ray.len, tb = (zh + 1.5f * mp.vs) * ray.len;
+  float sa = 0, sb = 0;
+  sampled = ta > t_min && cache.sample(ray.origin + ta * ray.dir, mp.min_w, sa) &&
+            cache.sample(ray.origin + tb * ray.dir, mp.min_w, sb);
+  if (sampled && sa > 0 && sb <= 0) return refineCrossing(cache, ray.origin, ray.dir, mp.min_w, ta, sa, tb, sb);
+  return -1;
+}
+
+// March from t to t_end: nearest-voxel samples, steps of the SDF, block
+// skipping, then the crossing refined on trilinear samples. `from_hint`: t
+// is a predicted surface's band; should its first sample lie behind a
+// surface already, the march starts over at t_restart. Returns the hit's t,
+// or -1.
+float march(const TsdfMap& map, BlockCache& cache, const Ray& ray, const MarchParams& mp, float t, float t_end,
+            bool from_hint, float t_restart) {
+  const float vs = mp.vs;
+  float prev_t = -1, prev_sdf = 0;
+  int guard = 0;
+  while (t < t_end && ++guard < 4096) {
+    const Eigen::Vector3f p = ray.origin + t * ray.dir;
+    const Eigen::Vector3i g = map.voxelOf(p);
+    int vi = 0;
+    const VoxelBlock* blk = cache.blockOfVoxel(g, vi);
+    if (blk == nullptr) {
+      const BlockKey key(g.x() >> 3, g.y() >> 3, g.z() >> 3);
+      t = std::max(t + 0.5f * vs, blockExit(map, key, ray.origin, ray.inv_dir) + 1e-4f);
+      prev_t = -1;
+      continue;
+    }
+    if (blk->geo[vi].weight <= mp.min_w) {
+      t += vs;
+      prev_t = -1;
+      continue;
+    }
+    const float sdf = blk->geo[vi].sdf_m;
+    if (from_hint) {
+      from_hint = false;
+      if (sdf < 0) {  // started behind a surface
+        t = t_restart;
+        prev_t = -1;
+        continue;
+      }
+    }
+    if (prev_t >= 0 && prev_sdf > 0 && sdf <= 0) {
+      // Crossing between prev_t and t (nearest-voxel values). Trilinear
+      // samples at both ends; where they do not bracket the surface (it may
+      // lie up to a voxel outside), move the ends outwards in half-voxel
+      // steps.
+      float ta = prev_t, tb = t, sa = 0, sb = 0;
+      bool ok_a = cache.sample(ray.origin + ta * ray.dir, mp.min_w, sa);
+      for (int k = 0; k < 3 && ok_a && sa <= 0; ++k) {
+        ta -= 0.5f * vs;
+        ok_a = cache.sample(ray.origin + ta * ray.dir, mp.min_w, sa);
+      }
+      bool ok_b = cache.sample(ray.origin + tb * ray.dir, mp.min_w, sb);
+      for (int k = 0; k < 3 && ok_b && sb > 0; ++k) {
+        tb += 0.5f * vs;
+        ok_b = cache.sample(ray.origin + tb * ray.dir, mp.min_w, sb);
+      }
+      // No trilinear bracket (the edge of the observed surface, where
+      // neighbours are missing): no hit rather than an imprecise one.
+      if (!(ok_a && ok_b && sa > 0 && sb <= 0)) return -1;
+      return refineCrossing(cache, ray.origin, ray.dir, mp.min_w, ta, sa, tb, sb);
+    }
+    prev_t = t;
+    prev_sdf = sdf;
+    t += std::max(0.5f * vs, mp.step_factor * (std::min(std::abs(sdf), mp.mu) - 0.5f * vs));
+  }
+  return -1;
+}
+
+// Normals from neighbouring vertices, facing the camera; none across jumps
+// of more than a few voxels (a silhouette, not a surface).
+void normalsFromVertices(ModelView& view, const Eigen::Vector3f& origin, float vs) {
+  const int width = view.depth.cols, height = view.depth.rows;
+  const float max_jump = 4.0f * vs;
+  for (int v = 1; v + 1 < height; ++v) {
+    const float* d0 = view.depth.ptr<float>(v - 1);
+    const float* d1 = view.depth.ptr<float>(v);
+    const float* d2 = view.depth.ptr<float>(v + 1);
+    const auto* up = view.vertex_world.ptr<cv::Vec3f>(v - 1);
+    const auto* mid = view.vertex_world.ptr<cv::Vec3f>(v);
+    const auto* down = view.vertex_world.ptr<cv::Vec3f>(v + 1);
+    auto* out = view.normal_world.ptr<cv::Vec3f>(v);
+    for (int u = 1; u + 1 < width; ++u) {
+      if (d1[u] <= 0 || d1[u - 1] <= 0 || d1[u + 1] <= 0 || d0[u] <= 0 || d2[u] <= 0) continue;
+      if (std::abs(d1[u + 1] - d1[u - 1]) > max_jump * 2 || std::abs(d2[u] - d0[u]) > max_jump * 2) continue;
+      cv::Vec3f n = (mid[u + 1] - mid[u - 1]).cross(down[u] - up[u]);
+      const float l = std::sqrt(n.dot(n));
+      if (!(l > 0)) continue;
+      n *= 1.0f / l;
+      const cv::Vec3f to_cam(origin.x() - mid[u][0], origin.y() - mid[u][1], origin.z() - mid[u][2]);
+      if (n.dot(to_cam) < 0) n = -n;
+      out[u] = n;
+    }
+  }
+}
+
 }  // namespace
 
 ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Isometry3f& T_world_cam,
@@ -96,9 +214,12 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
   view.vertex_world = cv::Mat(cam.height, cam.width, CV_32FC3, cv::Scalar(0, 0, 0));
   view.normal_world = cv::Mat(cam.height, cam.width, CV_32FC3, cv::Scalar(0, 0, 0));
   if (with_color) view.rgb = cv::Mat(cam.height, cam.width, CV_8UC3, cv::Scalar(0, 0, 0));
-  const float vs = map.voxelSize(), mu = map.truncation();
-  const float min_w = static_cast<float>(params.min_weight);
-  const float step_factor = static_cast<float>(params.step_factor);
+  MarchParams mp;
+  mp.vs = map.voxelSize();
+  mp.mu = map.truncation();
+  mp.min_w = static_cast<float>(params.min_weight);
+  mp.step_factor = static_cast<float>(params.step_factor);
+  const float vs = mp.vs;
   const Eigen::Vector3f origin = T_world_cam.translation();
   const Eigen::Matrix3f R = T_world_cam.linear();
   const int tw = (cam.width + kTile - 1) / kTile, th = (cam.height + kTile - 1) / kTile;
@@ -115,12 +236,13 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         const size_t tile = static_cast<size_t>((v / kTile) * tw + u / kTile);
         if (tile_near[tile] > tile_far[tile]) continue;
         const Eigen::Vector3f ray_cam = cam.backproject(static_cast<float>(u), static_cast<float>(v), 1.0f);
-        const float len = ray_cam.norm();
-        const Eigen::Vector3f dir = R * ray_cam / len;
-        const Eigen::Vector3f inv_dir = dir.cwiseInverse();
-        // Depth z along the optical axis is t / len along the ray.
-        const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * len;
-        const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * len;
+        Ray ray;
+        ray.origin = origin;
+        ray.len = ray_cam.norm();
+        ray.dir = R * ray_cam / ray.len;
+        ray.inv_dir = ray.dir.cwiseInverse();
+        const float tile_start = std::max(static_cast<float>(params.min_depth_m), tile_near[tile] - vs) * ray.len;
+        const float t_max = std::min(static_cast<float>(params.max_depth_m), tile_far[tile] + vs) * ray.len;
         const float predicted = hinted ? depth_hint.ptr<float>(v)[u] : 0.0f;
         // A pixel without a prediction first tries its left neighbour's hit
         // of this cast as one: holes in the prediction that the map can
@@ -133,136 +255,46 @@ ModelView raycast(const TsdfMap& map, const PinholeCamera& cam, const Eigen::Iso
         if (zh < 0.0f) continue;  // predicted empty
         float hit = -1;
         if (zh > 0.0f) {
-          // DESIGN: the hint is the depth just fused at (nearly) this pose,
-          // so the surface is almost always within a voxel of it. Bracket
-          // it directly with trilinear samples 1.5 voxels either side (the
-          // truncated SDF is linear there) and refine: three samples, no
-          // march. (A one-voxel bracket and its secant alone saved 0.6 ms
-          // per frame but cost tracking accuracy: ATE orbit 0.13 -> 0.16 cm.)
-          // Where a sample has no trilinear neighbourhood (the edge of the
-          // observed surface) a march would not find a bracketed crossing
-          // either: no hit, no march.
-          const float ta = (zh - 1.5f * vs) * len, tb = (zh + 1.5f * vs) * len;
-          float sa = 0, sb = 0;
-          const bool valid = ta > tile_start && cache.sample(origin + ta * dir, min_w, sa) &&
-                             cache.sample(origin + tb * dir, min_w, sb);
-          if (!valid && !from_neighbour) continue;
-          if (valid && sa > 0 && sb <= 0) hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
+          bool sampled = false;
+          hit = hitNearDepth(cache, ray, mp, zh, tile_start, sampled);
+          if (!sampled && !from_neighbour) continue;
           if (hit < 0 && from_neighbour) {
             if (predicted < 0.0f) continue;
             zh = 0.0f;  // march from the tile bound
           }
         }
-        // March: nearest-voxel samples, steps of the SDF, block skipping. A
-        // hinted ray starts before the predicted surface; should its first
-        // sample lie behind a surface already, it starts over from the tile
-        // bound.
-        float t = tile_start, t_end = t_max;
-        bool from_hint = false;
-        if (hit < 0 && zh > 0.0f) {
-          // The surface, if any, lies within the truncation band around
-          // the prediction: the march covers that band only.
-          const float start = (zh - mu - 2.0f * vs) * len;
-          t_end = std::min(t_max, (zh + mu + 2.0f * vs) * len);
-          if (start > t) {
-            t = start;
-            from_hint = true;
-          }
-        }
-        float prev_t = -1, prev_sdf = 0;
-        int guard = 0;
-        while (hit < 0 && t < t_end && ++guard < 4096) {
-          const Eigen::Vector3f p = origin + t * dir;
-          const Eigen::Vector3i g = map.voxelOf(p);
-          int vi = 0;
-          const VoxelBlock* blk = cache.blockOfVoxel(g, vi);
-          if (blk == nullptr) {
-            const BlockKey key(g.x() >> 3, g.y() >> 3, g.z() >> 3);
-            t = std::max(t + 0.5f * vs, blockExit(map, key, origin, inv_dir) + 1e-4f);
-            prev_t = -1;
-            continue;
-          }
-          if (blk->geo[vi].weight <= min_w) {
-            t += vs;
-            prev_t = -1;
-            continue;
-          }
-          const float sdf = blk->geo[vi].sdf_m;
-          if (from_hint) {
-            from_hint = false;
-            if (sdf < 0) {  // started behind a surface
-              t = tile_start;
-              prev_t = -1;
-              continue;
+        if (hit < 0) {
+          // A predicted surface, if any, lies within the truncation band
+          // around the prediction: the march covers that band only.
+          float t = tile_start, t_end = t_max;
+          bool from_hint = false;
+          if (zh > 0.0f) {
+            const float start = (zh - mp.mu - 2.0f * vs) * ray.len;
+            t_end = std::min(t_max, (zh + mp.mu + 2.0f * vs) * ray.len);
+            if (start > t) {
+              t = start;
+              from_hint = true;
             }
           }
-          if (prev_t >= 0 && prev_sdf > 0 && sdf <= 0) {
-            // Crossing between prev_t and t (nearest-voxel values). Trilinear
-            // samples at both ends; where they do not bracket the surface
-            // (it may lie up to a voxel outside), move the ends outwards in
-            // half-voxel steps.
-            float ta = prev_t, tb = t, sa = 0, sb = 0;
-            bool ok_a = cache.sample(origin + ta * dir, min_w, sa);
-            for (int k = 0; k < 3 && ok_a && sa <= 0; ++k) {
-              ta -= 0.5f * vs;
-              ok_a = cache.sample(origin + ta * dir, min_w, sa);
-            }
-            bool ok_b = cache.sample(origin + tb * dir, min_w, sb);
-            for (int k = 0; k < 3 && ok_b && sb > 0; ++k) {
-              tb += 0.5f * vs;
-              ok_b = cache.sample(origin + tb * dir, min_w, sb);
-            }
-            // No trilinear bracket (the edge of the observed surface, where
-            // neighbours are missing): no hit rather than an imprecise one.
-            if (!(ok_a && ok_b && sa > 0 && sb <= 0)) break;
-            hit = refineCrossing(cache, origin, dir, min_w, ta, sa, tb, sb);
-            break;
-          }
-          prev_t = t;
-          prev_sdf = sdf;
-          t += std::max(0.5f * vs, step_factor * (std::min(std::abs(sdf), mu) - 0.5f * vs));
+          hit = march(map, cache, ray, mp, t, t_end, from_hint, tile_start);
         }
         if (hit < 0) continue;
-        const Eigen::Vector3f p = origin + hit * dir;
-        drow[u] = hit / len;
+        const Eigen::Vector3f p = origin + hit * ray.dir;
+        drow[u] = hit / ray.len;
         vrow[u] = cv::Vec3f(p.x(), p.y(), p.z());
         ++local_valid;
-        if (with_color) {
-          Eigen::Vector3f c;
-          if (cache.sampleColor(p, c)) {  // in [0, 255]: +0.5 and truncation round
-            view.rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(static_cast<uint8_t>(c.x() + 0.5f),
-                                                     static_cast<uint8_t>(c.y() + 0.5f),
-                                                     static_cast<uint8_t>(c.z() + 0.5f));
-          }
+        Eigen::Vector3f c;
+        if (with_color && cache.sampleColor(p, c)) {  // in [0, 255]: +0.5 and truncation round
+          view.rgb.at<cv::Vec3b>(v, u) =
+              cv::Vec3b(static_cast<uint8_t>(c.x() + 0.5f), static_cast<uint8_t>(c.y() + 0.5f),
+                        static_cast<uint8_t>(c.z() + 0.5f));
         }
       }
     }
     valid += local_valid;
   });
   view.valid_pixels = valid;
-  // Normals from neighbouring vertices; rejected across jumps of more than
-  // a few voxels (a silhouette, not a surface).
-  const float max_jump = 4.0f * vs;
-  for (int v = 1; v + 1 < cam.height; ++v) {
-    const float* d0 = view.depth.ptr<float>(v - 1);
-    const float* d1 = view.depth.ptr<float>(v);
-    const float* d2 = view.depth.ptr<float>(v + 1);
-    const auto* up = view.vertex_world.ptr<cv::Vec3f>(v - 1);
-    const auto* mid = view.vertex_world.ptr<cv::Vec3f>(v);
-    const auto* down = view.vertex_world.ptr<cv::Vec3f>(v + 1);
-    auto* out = view.normal_world.ptr<cv::Vec3f>(v);
-    for (int u = 1; u + 1 < cam.width; ++u) {
-      if (d1[u] <= 0 || d1[u - 1] <= 0 || d1[u + 1] <= 0 || d0[u] <= 0 || d2[u] <= 0) continue;
-      if (std::abs(d1[u + 1] - d1[u - 1]) > max_jump * 2 || std::abs(d2[u] - d0[u]) > max_jump * 2) continue;
-      cv::Vec3f n = (mid[u + 1] - mid[u - 1]).cross(down[u] - up[u]);
-      const float l = std::sqrt(n.dot(n));
-      if (!(l > 0)) continue;
-      n *= 1.0f / l;
-      const cv::Vec3f to_cam(origin.x() - mid[u][0], origin.y() - mid[u][1], origin.z() - mid[u][2]);
-      if (n.dot(to_cam) < 0) n = -n;
-      out[u] = n;
-    }
-  }
+  normalsFromVertices(view, origin, vs);
   return view;
 }
 

@@ -197,6 +197,33 @@ class PoseWindow {
                         Eigen::Matrix<double, 12, 12>* H, Eigen::Matrix<double, 12, 1>* b) const;
   double priorCost(const Eigen::Isometry3d& T_world_kf, Matrix6d* H, Vector6d* b) const;
 
+  // The solve's steps.
+  /// Keyframe j's factors in a solve: base and extra pixel sets, and the
+  /// hits they were cast on (shared by the trial steps that reuse them).
+  struct KfEval {
+    Linearization base, extra;
+    std::vector<PixelResult> extra_pixels;
+    std::shared_ptr<const std::vector<CachedHit>> base_hits, extra_hits;
+  };
+  /// Appends params_.explore_pixels random usable pixels of keyframe j.
+  void explore(size_t j, std::vector<Eigen::Vector2i>& extra);
+  /// Casts keyframe j's base (extra) samples into the maps at T_world_kf.
+  void castBase(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, KfEval& e) const;
+  void castExtra(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, KfEval& e) const;
+  /// Keyframe j's factors at T_world_kf on the planes of `from`'s hits (no casting).
+  KfEval onPlanes(size_t j, const Eigen::Isometry3d& T_world_kf, const KfEval& from) const;
+  /// The whole objective at poses x; with H, b its normal equations.
+  double assemble(const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev, Eigen::MatrixXd* H,
+                  Eigen::VectorXd* b, ChannelStats& stats) const;
+  /// The objective on the base sets alone (the extras' share left out).
+  double baseCost(const std::vector<Eigen::Isometry3d>& x, const std::vector<KfEval>& ev) const;
+  /// Omega for the next iteration of keyframe j at its accepted pose: the
+  /// largest residuals among the extras, a fresh explore set, cast (the
+  /// base too when `recast`; true if it was).
+  bool nextPixelSets(size_t j, const Eigen::Isometry3d& T_world_kf, const FeedbackMaps& maps, bool recast, KfEval& e);
+  /// Each pose's information with the others marginalized, from the window's H.
+  std::vector<Matrix6d> marginalInformation(const Eigen::MatrixXd& H) const;
+
   FeedbackParams params_;
   std::vector<WindowKeyframe> keyframes_;
   std::vector<Slot> slots_;
