@@ -6,7 +6,7 @@
 //    a child) takes each one as soon as its waitset wakes and measures
 //    receive time minus the writer's source timestamp (same host clock).
 //    Prints p50/p99 and the publisher's cost per pose on the calling thread.
-// 2. The shared TUM slice played at its recorded rate through the runtime
+// 2. A recording (default: the shared TUM slice) played at its recorded rate through the runtime
 //    threads twice in this process: without DDS and with the publisher
 //    (default dds: settings; a subscriber process reads every topic). Map
 //    update bandwidth per second of playback, publishing cost per frame on
@@ -225,7 +225,7 @@ int main(int argc, char** argv) {
                received, n + 50, p50, p99, mx, s.frame_cost_p50_ms * 1e3, s.frame_cost_max_ms * 1e3);
   }
 
-  // 2. The TUM slice at its recorded rate, without and with publishing.
+  // 2. The recording at its recorded rate, without and with publishing.
   test::BenchSequence sequence;
   if (!test::loadDatasetSequence(tum_dir, sequence) || sequence.frames.empty()) return 1;
   const std::vector<RgbdFrame>& frames = sequence.frames;
@@ -238,7 +238,7 @@ int main(int argc, char** argv) {
   ro.status_interval_s = 0;
   ro.refine_workers = config.runtime.refine_workers;
   auto frontendMs = [](const RealtimeStats& s) { return s.frontend_p50_ms; };
-  fmt::print("TUM slice: {} frames, {:.2f} s at the recorded rate\n", frames.size(), sequence_s);
+  fmt::print("{}: {} frames, {:.2f} s at the recorded rate\n", tum_dir, frames.size(), sequence_s);
   for (int run = 0; run < 2; ++run) {
     Frontend frontend(sequence.camera, frontendParams(config));
     frontend.setInitialPose(T0);
