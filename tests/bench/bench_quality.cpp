@@ -24,7 +24,9 @@
 // Without a sequence folder (or with "-") the quality room is rendered in
 // memory (about 20 s on one core) along the given trajectory: "inspect"
 // (default) or "sweep", a second path past the same wall to check that
-// what was tuned on one holds on the other. Prints numbers; asserts nothing.
+// what was tuned on one holds on the other. HXMAP_BENCH_PRIORITY_RULE=sum
+// scores with the method's weighted sum instead of the default maximum.
+// Prints numbers; asserts nothing.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -177,6 +179,7 @@ int main(int argc, char** argv) {
     params.tsdf.voxel_size_m = static_cast<float>(std::atof(v));
     params.tsdf.truncation_m = 4 * params.tsdf.voxel_size_m;
   }
+  if (const char* v = std::getenv("HXMAP_BENCH_PRIORITY_RULE")) params.quality.priority_rule = v;  // max or sum
   rt::Frontend fe(cam, params);
   if (!gt.empty()) fe.setInitialPose(gt.front().T_world_cam);
   std::vector<double> quality_ms;
