@@ -74,7 +74,7 @@ namespace {
 class KeyframeSampler {
  public:
   KeyframeSampler(const TsdfMap& map, const KeyframeView& kf, const QualityParams& params)
-      : map_(map), f_(*kf.frame), m_(*kf.model), cache_(map) {
+      : f_(*kf.frame), m_(*kf.model), cache_(map) {
     has_normals_ = !f_.normal.empty() && !m_.normal_world.empty();
     has_model_vertex_ = !m_.vertex_world.empty() && m_.vertex_world.size() == m_.depth.size();
     has_photo_ = !f_.intensity.empty() && f_.intensity.size() == f_.depth.size() && !m_.vertex_world.empty();
@@ -211,7 +211,6 @@ class KeyframeSampler {
     if (kb != ka) ++acc_[kb == key ? last_slot_ : slotOf(kb)].good_n;
   }
 
-  const TsdfMap& map_;
   const FrameLevel& f_;
   const ModelView& m_;
   BlockCache cache_;
