@@ -65,6 +65,18 @@ endif()
 find_package(TBB QUIET)
 hxmap_optional(HXMAP_WITH_TBB "TBB parallel-for in the hxmap program" TBB_FOUND
   "TBB not found (apt install libtbb-dev)")
+# OpenVDB export (hxmap map export): the library, its Imath dependency and
+# Boost's headers, which OpenVDB's headers include.
+find_path(HXMAP_OPENVDB_INCLUDE openvdb/openvdb.h)
+find_library(HXMAP_OPENVDB_LIB openvdb)
+find_library(HXMAP_IMATH_LIB NAMES Imath-3_1 Imath)
+find_path(HXMAP_BOOST_INCLUDE boost/numeric/conversion/conversion_traits.hpp)
+set(_openvdb_found FALSE)
+if(HXMAP_OPENVDB_INCLUDE AND HXMAP_OPENVDB_LIB AND HXMAP_IMATH_LIB AND HXMAP_BOOST_INCLUDE AND TBB_FOUND)
+  set(_openvdb_found TRUE)
+endif()
+hxmap_optional(HXMAP_WITH_OPENVDB "OpenVDB export of saved maps (hxmap map export)" _openvdb_found
+  "OpenVDB, Imath, Boost headers or TBB not found (apt install libopenvdb-dev libboost-dev libtbb-dev)")
 find_package(Open3D QUIET)
 hxmap_optional(HXMAP_WITH_OPEN3D_PEER "Open3D TSDF integration as the peer in bench_frontend" Open3D_FOUND
   "Open3D not found (apt install libopen3d-dev)")

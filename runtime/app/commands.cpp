@@ -27,6 +27,7 @@
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/implicit/detail.hpp"
+#include "hxmap/mapfile/map_file.hpp"
 #include "hxmap/realtime/realtime.hpp"
 #include "hxmap/scheduler/trace.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
@@ -253,6 +254,7 @@ struct RunPipeline {
   std::unique_ptr<dds::Publisher> publisher;
 #endif
   bool realtime = false;
+  std::string map_text;  ///< what --load-map loaded, for the summary
   RunFolder folder;  ///< where the outputs go (committed to --out at the end)
   std::unique_ptr<LiveTrajectoryFile> live_file;
 };
@@ -380,6 +382,38 @@ Expected<RunInput> openInput(const RunOptions& o, const HxmapConfig& c) {
 }
 
 // The frontend at its first pose, the publisher when asked for, the output folder.
+// --load-map: the saved map and its keyframes into the frontend, which
+// relocalizes in them before it fuses anything.
+Status resumeSavedMap(const RunOptions& o, RunPipeline& p) {
+  drv::MapLoadOptions lo;
+  lo.skip_bad = o.skip_bad;
+  lo.tsdf = p.params.tsdf;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto loaded = drv::loadMap(o.load_map, lo, p.params.relocalization);
+  if (!loaded) return Error{"--load-map: " + loaded.message()};
+  if (loaded->keyframes.size() == 0) {
+    return fail(
+        fmt::format("--load-map: {} holds no keyframes to relocalize with (a map saved from frames "
+                    "without color?)",
+                    o.load_map));
+  }
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  p.map_text = fmt::format("map: continued {} ({} blocks, {} keyframes, loaded in {:.2f} s{})", o.load_map,
+                           loaded->map.blockCount(), loaded->keyframes.size(), s,
+                           loaded->skipped_blocks + loaded->skipped_keyframes > 0
+                               ? fmt::format("; {} corrupt blocks and {} keyframes skipped", loaded->skipped_blocks,
+                                             loaded->skipped_keyframes)
+                               : std::string());
+  spdlog::info("{}; relocalizing in it before fusing", p.map_text);
+  if (p.params.loop_closure.enabled) {
+    spdlog::info(
+        "loop closure is off for a run that continues a saved map (a closure rebuilds the map from "
+        "this run's keyframes only)");
+  }
+  p.frontend->resumeMap(std::move(loaded->map), std::move(loaded->keyframes));
+  return Status::ok();
+}
+
 Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, const RunInput& in) {
   RunPipeline p;
   p.realtime = o.realtime || in.camera;
@@ -415,12 +449,16 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
         "configure and build again)");
   }
 #endif
+  if (!o.load_map.empty()) {
+    if (Status s = resumeSavedMap(o, p); !s) return Error{s.message()};
+  }
   if (in.camera) {
     // REP 103: the map is z-up. The first camera pose (optical: z forward,
     // x right, y down) is taken as level, looking along the map's x axis.
     p.frontend->setInitialPose(alg::levelOpticalInZUp());
   }
-  if (in.dataset && c.dataset.initial_pose == "ground_truth" && !in.groundTruth().empty()) {
+  // A resumed map has its frame already (the run relocalizes in it).
+  if (in.dataset && c.dataset.initial_pose == "ground_truth" && !in.groundTruth().empty() && o.load_map.empty()) {
     Eigen::Isometry3d T0;
     if (alg::interpolatePose(in.groundTruth(), in.dataset->stamp(in.frames[0]), 200'000'000, T0)) {
       p.frontend->setInitialPose(T0);
@@ -460,9 +498,9 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   }
   RealtimeOptions ro = realtimeOptions(c, o.fps);
   // Each pose to disk as it is published (a killed run keeps them all).
-  ro.on_frame = [&p](const FrameResult& r, [[maybe_unused]] const Frontend& f,
-                     [[maybe_unused]] const RunCounters& counters) {
+  ro.on_frame = [&p](const FrameResult& r, const Frontend& f, [[maybe_unused]] const RunCounters& counters) {
     p.live_file->append(r.stamp_ns, r.T_world_cam);
+    if (f.resumeFailed()) g_stop.store(true);  // runtime.resume_otherwise: fail
 #ifdef HXMAP_HAVE_DDS
     if (p.publisher) p.publisher->onFrame(r, f.map(), f.trajectory(), counters);
 #endif
@@ -541,7 +579,7 @@ void runOffline(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipe
   RealtimeOptions so;
   so.refine_workers = c.runtime.refine_workers;
   so.loop_parallel = p.parallel;
-  so.should_stop = [&halt] { return halt; };
+  so.should_stop = [&halt, &p] { return halt || p.frontend->resumeFailed(); };
   so.on_frame = [&](const FrameResult& r, const Frontend& frontend, const RunCounters& counters) {
     spdlog::debug("frame {}: {} ({}) inliers {} within noise {:.0f} % rms {:.2f} mm, t = [{:.3f} {:.3f} {:.3f}]{}{}",
                   source.read() - 1, alg::trackingStateName(r.state), alg::poseSourceName(r.pose_source), r.inliers,
@@ -736,6 +774,12 @@ std::string summarize(const RunOptions& o, const HxmapConfig& c, const RunInput&
 // configured share) did not succeed, whatever it wrote. Empty: it did.
 std::string runFailure(const HxmapConfig& c, const Frontend& frontend) {
   const size_t processed = frontend.trajectory().size(), lost = frontend.lostFrames();
+  if (frontend.resumeFailed()) {
+    return fmt::format(
+        "not relocalized in the saved map within {} frames (runtime.resume_relocalize_frames; "
+        "runtime.resume_otherwise: new_map starts a new map instead)",
+        c.runtime.resume_relocalize_frames);
+  }
   if (processed > 0 && frontend.trackingCounts().tracked == 0) {
     return fmt::format("nothing was mapped: none of the {} frames was tracked well enough to fuse", processed);
   }
@@ -744,6 +788,36 @@ std::string runFailure(const HxmapConfig& c, const Frontend& frontend) {
                        c.runtime.max_lost_share);
   }
   return {};
+}
+
+std::string resumeText(const RunPipeline& p) {
+  const Frontend& f = *p.frontend;
+  std::string text = p.map_text;
+  if (f.resumedAtFrame() >= 0) {
+    text += fmt::format("; relocalized in it at frame {}", f.resumedAtFrame());
+  } else if (f.resumeAbandoned()) {
+    text += "; not relocalized in it: set aside, a new map was started (runtime.resume_otherwise: new_map)";
+  } else {
+    text += "; not relocalized in it";
+  }
+  return text + "\n";
+}
+
+// --save-map: the map and its keyframe database, atomically.
+std::string saveMapText(const RunOptions& o, const Frontend& frontend) {
+  if (frontend.trackingCounts().tracked == 0 && !frontend.resuming()) {
+    spdlog::warn("--save-map: this run mapped nothing; {} not written", o.save_map);
+    return fmt::format("map: not saved to {} (nothing was mapped)\n", o.save_map);
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto saved = drv::saveMap(o.save_map, frontend.map(), &frontend.keyframeDatabase());
+  if (!saved) {
+    spdlog::error("--save-map: {}", saved.message());
+    return fmt::format("map: not saved to {} (see the error)\n", o.save_map);
+  }
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return fmt::format("map: saved {} ({} blocks, {} keyframes, {:.1f} MiB in {:.2f} s)\n", o.save_map, saved->blocks,
+                     saved->keyframes, static_cast<double>(saved->bytes) / (1 << 20), s);
 }
 
 }  // namespace
@@ -802,6 +876,12 @@ int runCommand(const RunOptions& options) {
   const RunOutputs out = writeOutputs(c, p, rec);
   int exit_code = rec.first_error.empty() && out.ok() ? 0 : 1;
   std::string summary = summarize(o, c, in, p, rec, out);
+  if (!p.map_text.empty()) summary += resumeText(p);
+  if (!o.save_map.empty()) {
+    const std::string text = saveMapText(o, frontend);
+    summary += text;
+    if (text.find("not saved") != std::string::npos) exit_code = 1;
+  }
 #ifdef HXMAP_HAVE_DDS
   summary += dds_text;
 #endif
@@ -1091,6 +1171,8 @@ FrontendParams frontendParams(const HxmapConfig& c) {
   fp.refine.enabled = c.refine.enabled && c.quality_enabled;
   fp.feedback = c.feedback;
   fp.loop_closure = c.loop_closure;
+  fp.resume_relocalize_frames = c.runtime.resume_relocalize_frames;
+  fp.resume_new_map_otherwise = c.runtime.resume_otherwise == "new_map";
   fp.odometry_bias << 0.0, c.eval.odometry_bias_deg * M_PI / 180.0, 0.0, c.eval.odometry_bias_m, 0.0, 0.0;
   return fp;
 }

@@ -27,6 +27,12 @@ struct RunOptions {
   bool realtime = false;     ///< play at the recorded rate through the runtime's threads
   double fps = 0;            ///< with realtime: playback rate (0 = recorded stamps)
   std::string save_quality;  ///< folder for indicator images per keyframe, ROI boxes, block scores; empty = none
+  /// The map and its keyframe database, saved at the end of the run (a map
+  /// file, drivers/mapfile); empty = none.
+  std::string save_map;
+  /// A saved map to continue: the run relocalizes in it before it fuses
+  /// anything (runtime.resume_relocalize_frames, runtime.resume_otherwise).
+  std::string load_map;
   bool dds = false;          ///< publish over DDS (also dds.enabled in the configuration)
   /// Intrinsics by name (fr1, fr2, fr3, kinect) for a dataset that carries
   /// none; they win over the dataset's own. Empty: none.
@@ -63,6 +69,17 @@ struct EvalOptions {
 int evalCommand(const EvalOptions& options);
 
 int configCommand(const std::string& config);
+
+struct MapOptions {
+  std::string action;          ///< info, mesh or export
+  std::string file;            ///< the map file
+  std::string out;             ///< mesh / export: the file to write
+  std::string format = "vdb";  ///< export: vdb
+  bool skip_bad = false;
+  std::string config;  ///< mesh: the mesh section
+};
+/// Inspects a map file (`hxmap map info|mesh|export`).
+int mapCommand(const MapOptions& options);
 
 struct EchoOptions {
   std::string topic;     ///< pose, trajectory, map or health

@@ -54,7 +54,11 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.1, 1000.0));
   run_cmd->add_option("--save-quality", run.save_quality,
                       "folder for quality indicator images per keyframe, ROI boxes (rois.ply) and block scores");
-  run_cmd->add_flag("--skip-bad", run.skip_bad, "skip unreadable frames and bad list lines (counted, logged)");
+  run_cmd->add_option("--save-map", run.save_map,
+                      "save the map and its keyframe database to this file at the end (atomically)");
+  run_cmd->add_option("--load-map", run.load_map, "continue a saved map: relocalize in it first, then map into it");
+  run_cmd->add_flag("--skip-bad", run.skip_bad,
+                    "skip unreadable frames, bad list lines and corrupt map records (counted, logged)");
   run_cmd->add_flag("--no-mesh-eval", run.no_mesh_eval, "do not score the mesh against gt_mesh.ply");
   run_cmd->add_flag("--dds", run.dds, "publish pose, trajectory, map and health over DDS (as dds.enabled)");
 
@@ -114,6 +118,17 @@ int main(int argc, char** argv) {
   echo_cmd->add_option("--domain", echo.domain_id, "DDS domain id (default: from the configuration)");
   echo_cmd->add_option("--prefix", echo.prefix, "topic prefix (default: from the configuration)");
 
+  hxmap::rt::MapOptions map;
+  auto* map_cmd = app.add_subcommand("map", "a saved map file: info, mesh or export");
+  map_cmd->add_option("action", map.action, "info (header and statistics), mesh (PLY) or export (OpenVDB)")
+      ->required()
+      ->check(CLI::IsMember({"info", "mesh", "export"}));
+  map_cmd->add_option("file", map.file, "the map file (hxmap run --save-map)")->required();
+  map_cmd->add_option("--out", map.out, "mesh, export: the file to write");
+  map_cmd->add_option("--format", map.format, "export: vdb (OpenVDB grids sdf, weight, color)");
+  map_cmd->add_option("--config", map.config, "mesh: YAML configuration (mesh section)");
+  map_cmd->add_flag("--skip-bad", map.skip_bad, "leave corrupt blocks out (counted) instead of failing");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -129,6 +144,7 @@ int main(int argc, char** argv) {
     if (*eval_cmd) return hxmap::rt::evalCommand(eval);
     if (*config_cmd) return hxmap::rt::configCommand(config_path);
     if (*echo_cmd) return hxmap::rt::echoCommand(echo);
+    if (*map_cmd) return hxmap::rt::mapCommand(map);
     return 2;
   });
 }

@@ -43,7 +43,7 @@ FrameFeatures extractFeatures(const cv::Mat& gray8, const cv::Mat& depth_m, cons
 
 void KeyframeDatabase::add(uint32_t id, const FrameFeatures& features, const Eigen::Isometry3d& T_world_cam) {
   if (features.descriptors.rows == 0) return;
-  Entry e;
+  Keyframe e;
   e.id = id;
   e.T_world_cam = T_world_cam;
   e.descriptors = features.descriptors.clone();
@@ -53,7 +53,7 @@ void KeyframeDatabase::add(uint32_t id, const FrameFeatures& features, const Eig
 }
 
 bool KeyframeDatabase::updatePose(uint32_t id, const Eigen::Isometry3d& T_world_cam) {
-  for (Entry& e : keyframes_) {
+  for (Keyframe& e : keyframes_) {
     if (e.id == id) {
       e.T_world_cam = T_world_cam;  // points are kept in the camera frame
       return true;
@@ -64,7 +64,7 @@ bool KeyframeDatabase::updatePose(uint32_t id, const Eigen::Isometry3d& T_world_
 
 size_t KeyframeDatabase::bytes() const {
   size_t b = 0;
-  for (const Entry& e : keyframes_) b += e.descriptors.total() + e.points_cam.size() * sizeof(Eigen::Vector3f);
+  for (const Keyframe& e : keyframes_) b += e.descriptors.total() + e.points_cam.size() * sizeof(Eigen::Vector3f);
   return b;
 }
 
@@ -186,7 +186,7 @@ bool KeyframeQuery::step() {
     // with the most matches (RANSAC is the costly part).
     if (next_match_ < chosen_.size()) {
       const size_t i = chosen_[next_match_++];
-      const KeyframeDatabase::Entry& e = db_->keyframes_[i];
+      const KeyframeDatabase::Keyframe& e = db_->keyframes_[i];
       const std::vector<Nearest2> nearest = nearestTwo(frame_->descriptors, e.descriptors);
       Matched m;
       m.index = i;
@@ -213,7 +213,7 @@ bool KeyframeQuery::step() {
     return false;
   }
   const Matched& m = matched_[next_pnp_++];
-  const KeyframeDatabase::Entry& e = db_->keyframes_[m.index];
+  const KeyframeDatabase::Keyframe& e = db_->keyframes_[m.index];
   const int matches = static_cast<int>(m.object.size());
   cv::Mat rvec, tvec;
   std::vector<int> inliers;

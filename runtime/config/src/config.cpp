@@ -303,6 +303,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("background_nice", c.runtime.background_nice, 0, 19);
   v.number("max_lost_share", c.runtime.max_lost_share, 0, 1);
   v.number("checkpoint_s", c.runtime.checkpoint_s, 0, 1e6);
+  v.integer("resume_relocalize_frames", c.runtime.resume_relocalize_frames, 1, 1000000);
+  v.choice("resume_otherwise", c.runtime.resume_otherwise, {"fail", "new_map"});
 
   auto& g = c.rig;
   v.section("rig");

@@ -8,6 +8,7 @@
 #include <malloc.h>
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
 
 #include "hxmap/feedback/residuals.hpp"
@@ -62,11 +63,50 @@ Frontend::Frontend(const alg::PinholeCamera& camera, const FrontendParams& param
   // One noise model for preprocessing and tracking's gates.
   params_.tracking.noise_sigma_a_m = params_.preprocess.noise_sigma_a_m;
   params_.tracking.noise_sigma_b_per_m = params_.preprocess.noise_sigma_b_per_m;
+  makeLoopCloser();
+}
+
+void Frontend::makeLoopCloser() {
   if (params_.loop_closure.enabled && params_.relocalization.enabled) {
     loop_closer_ = std::make_unique<LoopCloser>(
         LoopCloserParams{params_.loop_closure, params_.relocalization, params_.tracking, params_.tsdf, params_.raycast},
         camera_, parallel_);
   }
+}
+
+void Frontend::resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes) {
+  map_ = std::move(map);
+  keyframe_db_ = std::move(keyframes);
+  for (const auto& k : keyframe_db_.keyframes()) keyframe_id_base_ = std::max(keyframe_id_base_, k.id + 1);
+  initialized_ = true;  // lost until relocalized: no model, no previous frame
+  resuming_ = true;
+  // DESIGN: a closure rebuilds the map from the keyframes this run kept,
+  // which would drop the saved map's blocks.
+  loop_closer_.reset();
+}
+
+void Frontend::checkResume(const FrameResult& r) {
+  if (r.tracked) {
+    resuming_ = false;
+    resumed_at_frame_ = frames_seen_ - 1;
+    spdlog::info("relocalized in the saved map at frame {}", resumed_at_frame_);
+    return;
+  }
+  if (frames_seen_ < std::max(1, params_.resume_relocalize_frames)) return;
+  resuming_ = false;
+  if (!params_.resume_new_map_otherwise) {
+    spdlog::error("not relocalized in the saved map within {} frames ({})", frames_seen_, r.failure);
+    resume_failed_ = true;
+    return;
+  }
+  spdlog::warn("not relocalized in the saved map within {} frames: a new map starts here", frames_seen_);
+  map_ = alg::TsdfMap(params_.tsdf);
+  keyframe_db_ = alg::KeyframeDatabase(params_.relocalization);
+  keyframe_id_base_ = 0;
+  initialized_ = false;
+  lost_since_.reset();
+  resume_abandoned_ = true;
+  makeLoopCloser();
 }
 
 void Frontend::warmUp() {
@@ -98,6 +138,7 @@ void Frontend::warmUp() {
 
 FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T_given) {
   FrameResult r;
+  ++frames_seen_;
   // A pose is the depth camera's (tracking aligns depth), so it carries
   // the depth image's stamp (the color stamp cost 1.17 -> 1.28 cm ATE on
   // the whole TUM fr1/xyz, whose images are up to 17 ms apart).
@@ -118,8 +159,10 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
   const alg::TrackingDecision decision = locate(pre, T_given, icp, T_world_cam, r);
   if (!r.tracked) {
     keepLost(r);
+    if (resuming_) checkResume(r);
     return r;
   }
+  if (resuming_) checkResume(r);
   if (lost_since_) fillLostPoses(r.stamp_ns, T_world_cam);
   if (!params_.odometry_bias.isZero(0)) T_world_cam = T_world_cam * alg::expSE3(params_.odometry_bias);
   if (!decision.fuse) {
@@ -220,7 +263,7 @@ void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& 
   const alg::PreprocessedFrame previous_kf = keyframe_reference_;  // headers
   const Eigen::Isometry3d T_previous_kf_color = T_keyframe_color_;
   r.keyframe = true;
-  r.keyframe_id = static_cast<uint32_t>(keyframes_);
+  r.keyframe_id = keyframe_id_base_ + static_cast<uint32_t>(keyframes_);
   if (params_.feedback.enabled) {
     keepFeedbackKeyframe(r.keyframe_id, r.stamp_ns, initialized_ ? &icp : nullptr, T_last_kf_);
   }
@@ -269,7 +312,13 @@ void Frontend::fillLostPoses(int64_t stamp_ns, const Eigen::Isometry3d& T_found)
   // trajectory file) carry these; live outputs have already published.
   const size_t first = *lost_since_;
   lost_since_.reset();
-  if (first == 0 || first > trajectory_.size()) return;
+  if (first == 0) {
+    // Lost from the first frame (a resumed map not yet relocalized in):
+    // nothing before to interpolate from; the found pose is the nearest known.
+    for (StampedPose& p : trajectory_) p.T_world_cam = T_found;
+    return;
+  }
+  if (first > trajectory_.size()) return;
   const StampedPose& a = trajectory_[first - 1];
   const Eigen::Quaterniond qa(a.T_world_cam.linear()), qb(T_found.linear());
   const double span = static_cast<double>(stamp_ns - a.stamp_ns);

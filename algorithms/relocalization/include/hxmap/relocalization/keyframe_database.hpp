@@ -66,22 +66,27 @@ class KeyframeDatabase {
                                              std::string* why = nullptr,
                                              uint32_t max_id = UINT32_MAX) const;
 
+  /// A kept keyframe: its ORB descriptors (32 bytes a row) and their
+  /// points in its camera frame.
+  struct Keyframe {
+    uint32_t id = 0;
+    Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
+    cv::Mat descriptors;
+    std::vector<Eigen::Vector3f> points_cam;
+  };
+  /// Oldest first (what a map file saves; add() restores them in order).
+  const std::vector<Keyframe>& keyframes() const { return keyframes_; }
+
   size_t size() const { return keyframes_.size(); }
   size_t bytes() const;
   const RelocalizationParams& params() const { return params_; }
 
  private:
   friend class KeyframeQuery;
-  struct Entry {
-    uint32_t id = 0;
-    Eigen::Isometry3d T_world_cam = Eigen::Isometry3d::Identity();
-    cv::Mat descriptors;
-    std::vector<Eigen::Vector3f> points_cam;
-  };
   void evictOne();
 
   RelocalizationParams params_;
-  std::vector<Entry> keyframes_;  ///< oldest first
+  std::vector<Keyframe> keyframes_;  ///< oldest first
 };
 
 /// One query of a database, run in steps (KeyframeDatabase::query runs

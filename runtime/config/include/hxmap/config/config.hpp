@@ -91,6 +91,12 @@ struct RuntimeConfig {
   /// slack; the poses go to trajectory_live.txt frame by frame), so a
   /// killed run loses at most this much. 0 = at the end only.
   double checkpoint_s = 10;
+  /// hxmap run --load-map: frames the run may take to relocalize in the
+  /// saved map (nothing is fused before), then `resume_otherwise`: "fail"
+  /// (the run stops, exit 1) or "new_map" (the saved map is set aside and
+  /// a new one starts at that frame).
+  int resume_relocalize_frames = 90;
+  std::string resume_otherwise = "fail";
 };
 
 /// A live color + depth camera pair (drivers/sync): intrinsics and

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <deque>
 #include <functional>
 #include <map>
@@ -59,6 +60,12 @@ struct FrontendParams {
   /// against the map, a pose graph over keyframes, the trajectory corrected
   /// and the map rebuilt from the keyframes at their new poses.
   alg::LoopClosureParams loop_closure;
+  /// A run that continues a saved map (resumeMap): frames it may take to
+  /// relocalize in it before it gives up; then the saved map is set aside
+  /// and a new one starts (resume_new_map_otherwise), or the run is told
+  /// to stop (resumeFailed).
+  int resume_relocalize_frames = 90;
+  bool resume_new_map_otherwise = false;
   /// Evaluation only: a tracking bias, xi = (omega rad, v m) applied to
   /// every tracked pose on the right (T <- T exp(xi)), to measure how pose
   /// feedback copes with drifting odometry. Zero in any real run.
@@ -82,6 +89,22 @@ class Frontend {
 
   /// Pose of the first frame (default identity).
   void setInitialPose(const Eigen::Isometry3d& T_world_cam) { T_initial_ = T_world_cam; }
+
+  /// Continues a saved map (hxmap run --load-map), before the first frame:
+  /// frames are lost until one relocalizes in it through the saved keyframe
+  /// database (verified by ICP against the map, as any relocalization);
+  /// nothing is fused before. Loop closure is off for such a run (a
+  /// closure rebuilds the map from this run's keyframes only).
+  void resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes);
+  /// Resuming and not relocalized yet.
+  bool resuming() const { return resuming_; }
+  /// The frame index (from 0) that relocalized in the saved map; -1 before.
+  int64_t resumedAtFrame() const { return resumed_at_frame_; }
+  /// Not relocalized within resume_relocalize_frames with
+  /// resume_new_map_otherwise off: the run should stop. Safe from any thread.
+  bool resumeFailed() const { return resume_failed_.load(); }
+  /// The saved map was set aside for a new one (resume_new_map_otherwise).
+  bool resumeAbandoned() const { return resume_abandoned_; }
 
   /// Runs the whole pipeline on a few synthetic frames (a textured wall)
   /// into a scratch map, leaving this frontend untouched: first-use costs
@@ -256,6 +279,10 @@ class Frontend {
   void keepFeedbackKeyframe(uint32_t id, int64_t stamp_ns, const alg::IcpResult* icp,
                             const Eigen::Isometry3d& T_previous_kf);
 
+  /// Resuming: counts the frames until one relocalizes, and gives up.
+  void checkResume(const FrameResult& r);
+  void makeLoopCloser();
+
   alg::PinholeCamera camera_;
   FrontendParams params_;
   ParallelFor parallel_;
@@ -280,6 +307,11 @@ class Frontend {
   alg::KeyframeDatabase keyframe_db_;
   std::optional<size_t> lost_since_;  ///< trajectory index of the first frame of the current loss
   bool initialized_ = false;
+  bool resuming_ = false, resume_abandoned_ = false;
+  std::atomic<bool> resume_failed_{false};
+  int64_t resumed_at_frame_ = -1;
+  int64_t frames_seen_ = 0;
+  uint32_t keyframe_id_base_ = 0;  ///< ids below are the saved map's keyframes
   Eigen::Isometry3d T_initial_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d T_last_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d velocity_ = Eigen::Isometry3d::Identity();  ///< T_prev^-1 T_last
