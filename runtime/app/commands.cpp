@@ -27,6 +27,7 @@
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/implicit/detail.hpp"
+#include "hxmap/mapfile/block_store.hpp"
 #include "hxmap/mapfile/map_file.hpp"
 #include "hxmap/realtime/realtime.hpp"
 #include "hxmap/scheduler/trace.hpp"
@@ -249,6 +250,7 @@ struct RunInput {
 struct RunPipeline {
   ParallelFor parallel;
   FrontendParams params;
+  std::unique_ptr<drv::BlockStore> block_store;  ///< tsdf.max_resident_mib; outlives the frontend
   std::unique_ptr<Frontend> frontend;
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
@@ -431,6 +433,13 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
   p.parallel = makeParallelFor(c.runtime.threads);
   p.params = frontendParams(c);
   p.frontend = std::make_unique<Frontend>(in.cam, p.params, p.parallel);
+  if (c.tsdf.max_resident_mib > 0) {
+    // Scratch space beside the outputs, removed when the run ends.
+    auto store = drv::BlockStore::create(p.folder.staging());
+    if (!store) return store.error();
+    p.block_store = std::move(*store);
+    p.frontend->setBlockBacking(p.block_store.get());
+  }
 #ifdef HXMAP_HAVE_DDS
   if (o.dds || c.dds.enabled) {
     auto params = publisherParams(c);
@@ -790,6 +799,20 @@ std::string runFailure(const HxmapConfig& c, const Frontend& frontend) {
   return {};
 }
 
+// tsdf.max_resident_mib: how the budget held and what it cost.
+std::string memoryText(const HxmapConfig& c, const MemoryCounters& m, const drv::BlockStoreStats& s,
+                       size_t frame_count) {
+  const double frames = std::max<double>(1.0, static_cast<double>(frame_count));
+  return fmt::format(
+      "memory: budget {:g} MiB, voxels resident at most {:.1f} MiB; {} blocks moved out, {} brought back ({} ahead "
+      "of the camera, {} in view left for later frames), {} lost; store {:.1f} MiB on disk, {:.1f} MiB written; "
+      "moving out {:.2f} ms per frame (max {:.1f}), bringing back {:.2f} ms (max {:.1f})\n",
+      c.tsdf.max_resident_mib, static_cast<double>(m.resident_bytes_max) / (1 << 20), m.evicted, m.taken_back,
+      m.prefetched, m.prefetch_capped, m.lost, static_cast<double>(s.file_bytes) / (1 << 20),
+      static_cast<double>(s.bytes_written) / (1 << 20), m.evict_ms_total / frames, m.evict_ms_max,
+      m.prefetch_ms_total / frames, m.prefetch_ms_max);
+}
+
 std::string resumeText(const RunPipeline& p) {
   const Frontend& f = *p.frontend;
   std::string text = p.map_text;
@@ -863,6 +886,15 @@ int runCommand(const RunOptions& options) {
     runOffline(o, c, in, p, rec);
   }
   rec.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - rec.start).count();
+  // The outputs cover the whole map: blocks out of memory come back.
+  const MemoryCounters memory_in_run = p.frontend->memoryCounters();
+  p.frontend->restoreEvicted();
+  std::string memory_text;
+  if (p.block_store) {
+    memory_text = memoryText(c, memory_in_run, p.block_store->stats(), p.frontend->trajectory().size());
+    p.frontend->setBlockBacking(nullptr);
+    p.block_store.reset();  // its scratch file goes before the folder is committed
+  }
 #ifdef HXMAP_HAVE_DDS
   std::string dds_text;
   if (p.publisher) {
@@ -877,6 +909,7 @@ int runCommand(const RunOptions& options) {
   int exit_code = rec.first_error.empty() && out.ok() ? 0 : 1;
   std::string summary = summarize(o, c, in, p, rec, out);
   if (!p.map_text.empty()) summary += resumeText(p);
+  summary += memory_text;
   if (!o.save_map.empty()) {
     const std::string text = saveMapText(o, frontend);
     summary += text;

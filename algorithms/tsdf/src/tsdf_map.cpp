@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 
 namespace hxmap::alg {
 
@@ -61,6 +62,18 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   if (keys_.size() > chunks_.size() * kChunkBlocks) chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
   if (static_cast<size_t>(index) < stale_end_) block(static_cast<size_t>(index)) = VoxelBlock{};
   block_revisions_.push_back(0);
+  if (!elsewhere_.empty()) {
+    const auto it = elsewhere_.find(pack(key));
+    if (it != elsewhere_.end()) {
+      elsewhere_.erase(it);
+      if (backing_ && backing_->take(key, block(static_cast<size_t>(index)))) {
+        ++taken_back_;
+      } else {
+        block(static_cast<size_t>(index)) = VoxelBlock{};  // a partial read leaves nothing behind
+        ++lost_in_backing_;
+      }
+    }
+  }
   const uint64_t packed = pack(key) + 1;
   const size_t mask = table_keys_.size() - 1;
   size_t s = slotOf(packed, mask);
@@ -237,7 +250,42 @@ std::vector<int32_t> TsdfMap::changedSince(uint64_t revision) const {
   return out;
 }
 
+size_t TsdfMap::removeBlocks(std::vector<int32_t> block_indices) {
+  std::sort(block_indices.begin(), block_indices.end(), std::greater<>());
+  block_indices.erase(std::unique(block_indices.begin(), block_indices.end()), block_indices.end());
+  size_t refused = 0;
+  const size_t before = keys_.size();
+  if (!block_indices.empty()) ++revision_;
+  // Highest first: the last block is never one still to be removed.
+  for (const int32_t b : block_indices) {
+    if (b < 0 || static_cast<size_t>(b) >= keys_.size()) continue;
+    const size_t i = static_cast<size_t>(b);
+    if (backing_ && backing_->put(keys_[i], block(i))) {
+      elsewhere_.insert(pack(keys_[i]));
+    } else {
+      ++refused;
+      ++lost_in_backing_;
+    }
+    const size_t last = keys_.size() - 1;
+    if (i != last) {
+      block(i) = block(last);
+      keys_[i] = keys_[last];
+      block_revisions_[i] = revision_;  // moved: whoever follows indices reads it again
+    }
+    keys_.pop_back();
+    block_revisions_.pop_back();
+  }
+  // Chunks no block uses go back to the system; slots beyond the blocks
+  // hold old voxels until findOrAllocate clears them.
+  const size_t chunks = (keys_.size() + kChunkBlocks - 1) / kChunkBlocks;
+  if (chunks < chunks_.size()) chunks_.resize(chunks);
+  stale_end_ = std::min(std::max(stale_end_, before), chunks_.size() * kChunkBlocks);
+  rehash(table_keys_.size());
+  return refused;
+}
+
 void TsdfMap::clear() {
+  elsewhere_.clear();
   chunks_.clear();
   stale_end_ = 0;
   keys_.clear();

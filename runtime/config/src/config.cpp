@@ -80,6 +80,7 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.number("min_confidence", t.min_confidence, 0, 1);
   v.integer("integration_level", t.integration_level, -1, 3);
   v.integer("allocation_stride_px", t.allocation_stride_px, 0, 16);
+  v.number("max_resident_mib", t.max_resident_mib, 0, 1e7);
 
   v.section("raycast");
   v.number("min_depth_m", c.raycast.min_depth_m, 0, 100);

@@ -85,6 +85,100 @@ void Frontend::resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes) {
   loop_closer_.reset();
 }
 
+namespace {
+
+/// Whether a block (center c in the camera frame) can be in the view of a
+/// camera out to max_depth_m; `radius` is half the block's diagonal.
+bool blockInView(const Eigen::Vector3f& c, float radius, const alg::PinholeCamera& cam, float max_depth_m) {
+  if (c.z() < -radius || c.z() > max_depth_m + radius) return false;
+  const float z = std::max(c.z(), 0.05f);
+  const float mu = static_cast<float>(cam.fx) * radius / z, mv = static_cast<float>(cam.fy) * radius / z;
+  const float u = static_cast<float>(cam.fx) * c.x() / z + static_cast<float>(cam.cx);
+  const float v = static_cast<float>(cam.fy) * c.y() / z + static_cast<float>(cam.cy);
+  return u > -mu && u < static_cast<float>(cam.width) + mu && v > -mv && v < static_cast<float>(cam.height) + mv;
+}
+
+}  // namespace
+
+void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
+  if (map_.blocksElsewhere().empty()) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  const Eigen::Isometry3f T_cam_world = T_world_predicted.inverse().cast<float>();
+  const float half = 0.5f * map_.blockSize(), radius = half * std::sqrt(3.0f);
+  const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
+  std::vector<std::pair<float, uint64_t>> wanted;  // depth, packed key
+  for (const uint64_t k : map_.blocksElsewhere()) {
+    const Eigen::Vector3f c =
+        T_cam_world * (alg::unpackBlockKey(k).cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(half));
+    if (blockInView(c, radius, camera_, max_depth)) wanted.emplace_back(c.z(), k);
+  }
+  // Nearest first, as many as fit in the budget (a view that holds more
+  // than the budget gets its nearest part) and the per-frame cap.
+  const size_t budget = static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20));
+  const size_t resident = map_.memory().bytes;
+  const size_t room = resident < budget ? (budget - resident) / sizeof(alg::VoxelBlock) : 0;
+  const size_t cap = std::min(room, static_cast<size_t>(std::max(0, params_.max_prefetch_per_frame)));
+  if (wanted.size() > cap) {
+    std::nth_element(wanted.begin(), wanted.begin() + static_cast<std::ptrdiff_t>(cap), wanted.end());
+    memory_counters_.prefetch_capped += wanted.size() - cap;
+    wanted.resize(cap);
+  }
+  const uint64_t lost_before = map_.blocksLostInBacking();
+  for (const auto& [z, k] : wanted) map_.findOrAllocate(alg::unpackBlockKey(k));
+  memory_counters_.prefetched += wanted.size();
+  memory_counters_.lost += map_.blocksLostInBacking() - lost_before;
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  memory_counters_.prefetch_ms_total += ms;
+  memory_counters_.prefetch_ms_max = std::max(memory_counters_.prefetch_ms_max, ms);
+}
+
+void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
+  const size_t budget = static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20));
+  const size_t resident = map_.memory().bytes;
+  memory_counters_.resident_bytes_max = std::max(memory_counters_.resident_bytes_max, resident);
+  // The map's own count starts over when a loop closure replaces it.
+  const uint64_t taken = map_.blocksTakenBack();
+  memory_counters_.taken_back += taken >= taken_back_seen_ ? taken - taken_back_seen_ : taken;
+  taken_back_seen_ = taken;
+  if (resident <= budget) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  // Down to 85 % of the budget (not every frame a little), farthest first;
+  // blocks in view count as nearer (they would come straight back).
+  const size_t over = resident - budget * 85 / 100;
+  const size_t count = std::min((over + sizeof(alg::VoxelBlock) - 1) / sizeof(alg::VoxelBlock), map_.blockCount());
+  if (count == 0) return;
+  const Eigen::Isometry3f T_cam_world = T_world_cam.inverse().cast<float>();
+  const float half = 0.5f * map_.blockSize(), radius = half * std::sqrt(3.0f);
+  const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
+  std::vector<std::pair<float, int32_t>> far;  // -score, index
+  far.reserve(map_.blockCount());
+  for (size_t i = 0; i < map_.blockCount(); ++i) {
+    const Eigen::Vector3f c =
+        T_cam_world * (map_.key(i).cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(half));
+    const float d = c.norm() * (blockInView(c, radius, camera_, max_depth) ? 0.25f : 1.0f);
+    far.emplace_back(-d, static_cast<int32_t>(i));
+  }
+  std::nth_element(far.begin(), far.begin() + static_cast<std::ptrdiff_t>(count - 1), far.end());
+  std::vector<int32_t> victims;
+  victims.reserve(count);
+  for (size_t i = 0; i < count; ++i) victims.push_back(far[i].second);
+  memory_counters_.lost += map_.removeBlocks(std::move(victims));
+  memory_counters_.evicted += count;
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  memory_counters_.evict_ms_total += ms;
+  memory_counters_.evict_ms_max = std::max(memory_counters_.evict_ms_max, ms);
+}
+
+void Frontend::restoreEvicted() {
+  const std::vector<uint64_t> keys(map_.blocksElsewhere().begin(), map_.blocksElsewhere().end());
+  const uint64_t lost_before = map_.blocksLostInBacking();
+  for (const uint64_t k : keys) map_.findOrAllocate(alg::unpackBlockKey(k));
+  memory_counters_.lost += map_.blocksLostInBacking() - lost_before;
+  const uint64_t taken = map_.blocksTakenBack();
+  memory_counters_.taken_back += taken >= taken_back_seen_ ? taken - taken_back_seen_ : taken;
+  taken_back_seen_ = taken;
+}
+
 void Frontend::checkResume(const FrameResult& r) {
   if (r.tracked) {
     resuming_ = false;
@@ -172,6 +266,13 @@ FrameResult Frontend::process(const RgbdFrame& frame, const Eigen::Isometry3d* T
 
   // 3. Integrate the range-gated depth with per-pixel confidence.
   fuse(pre, T_world_cam, r);
+  if (backing_ && params_.tsdf.max_resident_mib > 0) {
+    // Under a memory budget: what the next frame will see comes back (the
+    // model rendered below then holds it), and the farthest blocks leave.
+    StageTimer t(r.stage_ms[kIntegrate]);
+    prefetch(velocity_valid_ ? T_world_cam * velocity_ : T_world_cam);
+    enforceBudget(T_world_cam);
+  }
 
   // 4. Raycast the model at the new pose for the next frame (the fused depth
   //    predicts where each ray meets the surface).

@@ -90,6 +90,10 @@ void Frontend::applyLoopCorrection(LoopCorrection& c) {
     // publishers that follow revisions send the whole new map.
     c.map->markAllChanged(map_.revision());
     map_ = std::move(*c.map);
+    // The rebuilt map holds what the keyframes saw; blocks held out of
+    // memory describe the old one.
+    if (backing_) backing_->clear();
+    map_.setBacking(backing_);
   }
   c.map.reset();
   ++map_epoch_;

@@ -16,6 +16,9 @@ struct TsdfParams {
   /// Pixel stride (at that level) when finding blocks to allocate; 0 =
   /// automatic, a third of the pixels a block spans at max_integration_depth_m.
   int allocation_stride_px = 0;
+  /// Memory budget for the voxels, MiB (0 = none): a run moves the blocks
+  /// farthest from the camera out to a block store on disk past it.
+  double max_resident_mib = 0;
 };
 
 /// Raycasting the map into depth, normal and color images.

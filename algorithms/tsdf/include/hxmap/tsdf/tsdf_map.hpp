@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <unordered_set>
 #include <vector>
 
 #include <Eigen/Core>
@@ -92,6 +93,20 @@ struct MapMemory {
   size_t bytes = 0;  ///< voxel storage + hash table
 };
 
+/// Where blocks go when they leave memory (a memory budget): a block store
+/// on disk in a run (drivers/mapfile). The map's single writer calls it.
+class BlockBacking {
+ public:
+  virtual ~BlockBacking() = default;
+  /// Keeps the block; false when it could not (the block is then lost).
+  virtual bool put(const BlockKey& key, const VoxelBlock& block) = 0;
+  /// The block's voxels into `out`, and forgets it; false when it holds
+  /// none for `key` or could not read it back.
+  virtual bool take(const BlockKey& key, VoxelBlock& out) = 0;
+  /// Forgets every block (the map was rebuilt without them).
+  virtual void clear() = 0;
+};
+
 class TsdfMap {
  public:
   explicit TsdfMap(const TsdfParams& params);
@@ -137,9 +152,25 @@ class TsdfMap {
       if (k == 0) return -1;
     }
   }
-  /// Index of the block, allocating it (voxels zero-weight) when missing.
-  /// Blocks never move: references stay valid until clear().
+  /// Index of the block, allocating it (voxels zero-weight) when missing;
+  /// a block held by the backing (removeBlocks) comes back with its voxels.
+  /// Blocks move only in clear() and removeBlocks().
   int32_t findOrAllocate(const BlockKey& key);
+
+  /// Memory budget: the backing that removed blocks go to and come back
+  /// from. Not owned; not copied with the map (a copy is a snapshot for a
+  /// reader, which must not touch the backing).
+  void setBacking(BlockBacking* backing) { backing_ = backing; }
+  /// Moves the blocks out of memory into the backing. The last blocks move
+  /// into the freed slots: their indices change (they are marked changed),
+  /// keys do not. Returns how many the backing refused (lost).
+  size_t removeBlocks(std::vector<int32_t> block_indices);
+  /// Blocks held by the backing (part of the map, not in memory).
+  bool heldElsewhere(const BlockKey& key) const { return elsewhere_.count(pack(key)) > 0; }
+  const std::unordered_set<uint64_t>& blocksElsewhere() const { return elsewhere_; }
+  /// Blocks the backing gave back, and those it failed to.
+  uint64_t blocksTakenBack() const { return taken_back_; }
+  uint64_t blocksLostInBacking() const { return lost_in_backing_; }
 
   BlockKey blockOf(const Eigen::Vector3f& p_world) const {
     const Eigen::Vector3f q = p_world * inv_block_size_;
@@ -206,6 +237,9 @@ class TsdfMap {
   uint64_t revision_ = 0;
   std::vector<uint64_t> table_keys_;  ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
+  BlockBacking* backing_ = nullptr;
+  std::unordered_set<uint64_t> elsewhere_;  ///< packed keys of blocks in the backing
+  uint64_t taken_back_ = 0, lost_in_backing_ = 0;
 };
 
 /// A map holding copies of the allocated blocks of `map` that overlap

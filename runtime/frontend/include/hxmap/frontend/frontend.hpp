@@ -64,6 +64,12 @@ struct FrontendParams {
   /// relocalize in it before it gives up; then the saved map is set aside
   /// and a new one starts (resume_new_map_otherwise), or the run is told
   /// to stop (resumeFailed).
+  /// The memory budget (tsdf.max_resident_mib) needs a backing
+  /// (setBlockBacking): past the budget the blocks farthest from the camera
+  /// leave memory, down to 85 % of it; blocks held there come back ahead of
+  /// the camera (those in the predicted view, nearest first, as many as the
+  /// budget has room for) or when fusion reaches them.
+  int max_prefetch_per_frame = 512;  ///< blocks brought back ahead of the camera per frame at most
   int resume_relocalize_frames = 90;
   bool resume_new_map_otherwise = false;
   /// Evaluation only: a tracking bias, xi = (omega rad, v m) applied to
@@ -105,6 +111,17 @@ class Frontend {
   bool resumeFailed() const { return resume_failed_.load(); }
   /// The saved map was set aside for a new one (resume_new_map_otherwise).
   bool resumeAbandoned() const { return resume_abandoned_; }
+
+  /// Where blocks go past the memory budget (not owned; outlives the
+  /// frontend's use of the map). Before the first frame.
+  void setBlockBacking(alg::BlockBacking* backing) {
+    backing_ = backing;
+    map_.setBacking(backing);
+  }
+  /// Brings every block out of memory back (for outputs that need the
+  /// whole map: the final mesh, --save-map); the budget is exceeded after.
+  void restoreEvicted();
+  MemoryCounters memoryCounters() const { return memory_counters_; }
 
   /// Runs the whole pipeline on a few synthetic frames (a textured wall)
   /// into a scratch map, leaving this frontend untouched: first-use costs
@@ -281,6 +298,11 @@ class Frontend {
 
   /// Resuming: counts the frames until one relocalizes, and gives up.
   void checkResume(const FrameResult& r);
+  /// Memory budget: blocks in the view predicted for the next frame come
+  /// back (up to the per-frame cap), nearest first.
+  void prefetch(const Eigen::Isometry3d& T_world_predicted);
+  /// Memory budget: past it, the blocks farthest from the camera leave.
+  void enforceBudget(const Eigen::Isometry3d& T_world_cam);
   void makeLoopCloser();
 
   alg::PinholeCamera camera_;
@@ -307,6 +329,9 @@ class Frontend {
   alg::KeyframeDatabase keyframe_db_;
   std::optional<size_t> lost_since_;  ///< trajectory index of the first frame of the current loss
   bool initialized_ = false;
+  alg::BlockBacking* backing_ = nullptr;
+  MemoryCounters memory_counters_;
+  uint64_t taken_back_seen_ = 0;  ///< map_.blocksTakenBack() when last counted
   bool resuming_ = false, resume_abandoned_ = false;
   std::atomic<bool> resume_failed_{false};
   int64_t resumed_at_frame_ = -1;

@@ -50,6 +50,18 @@ struct RunCounters {
   double latency_ms = 0;  ///< this frame: arrival to pose
 };
 
+/// The memory budget (tsdf max_resident_mib), summed over a run.
+struct MemoryCounters {
+  uint64_t evicted = 0;          ///< blocks moved out of memory
+  uint64_t prefetched = 0;       ///< blocks brought back ahead of the camera
+  uint64_t taken_back = 0;       ///< all blocks brought back (prefetch and fusion)
+  uint64_t lost = 0;             ///< blocks the store failed to keep or give back
+  uint64_t prefetch_capped = 0;  ///< blocks in view left out by the per-frame cap (not back yet)
+  size_t resident_bytes_max = 0;
+  double evict_ms_total = 0, evict_ms_max = 0;
+  double prefetch_ms_total = 0, prefetch_ms_max = 0;
+};
+
 /// How tracking found its poses, summed over a run.
 struct TrackingCounters {
   uint64_t velocity_retries = 0;         ///< frames tracked a second time from the constant-velocity guess

@@ -1,0 +1,111 @@
+// The memory budget: blocks moved out to the block store on disk and
+// brought back leave the TSDF exactly as it was, and a run under a budget
+// keeps its voxels within it while the camera moves on.
+#include <cstring>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "hxmap/frontend/frontend.hpp"
+#include "hxmap/mapfile/block_store.hpp"
+#include "synthetic_fixture.hpp"
+
+namespace hxmap::rt {
+namespace {
+
+size_t sameBlocks(const alg::TsdfMap& a, const alg::TsdfMap& b) {
+  size_t same = 0;
+  for (size_t i = 0; i < a.blockCount(); ++i) {
+    const int32_t j = b.find(a.key(i));
+    if (j < 0) continue;
+    const alg::VoxelBlock& x = a.block(i);
+    const alg::VoxelBlock& y = b.block(static_cast<size_t>(j));
+    same += std::memcmp(x.geo, y.geo, sizeof x.geo) == 0 && std::memcmp(x.color, y.color, sizeof x.color) == 0 &&
+            std::memcmp(x.stats, y.stats, sizeof x.stats) == 0 && x.seen_through == y.seen_through;
+  }
+  return same;
+}
+
+TEST(MemoryBudget, BlocksMovedOutAndBroughtBackLeaveTheTsdfAndItsStatisticsIdentical) {
+  alg::TsdfParams p;
+  alg::TsdfMap map(p);
+  std::mt19937 rng(3);
+  for (int x = -5; x < 5; ++x) {
+    for (int y = -5; y < 5; ++y) {
+      alg::VoxelBlock& b = map.block(static_cast<size_t>(map.findOrAllocate({x, y, 0})));
+      for (int v = 0; v < alg::kBlockVoxels; ++v) {
+        b.geo[v] = {static_cast<float>(rng() % 1000) * 1e-4f, static_cast<float>(rng() % 64)};
+        b.color[v] = {static_cast<uint8_t>(rng()), 1, 2, 0};
+        b.stats[v] = {static_cast<uint32_t>(rng() % 50), 0.01f, 0.002f};
+      }
+      b.seen_through = (x + y) % 2 == 0;
+    }
+  }
+  const alg::TsdfMap before = map;
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  map.setBacking(store->get());
+  std::vector<int32_t> out;
+  for (int32_t i = 0; i < 100; i += 3) out.push_back(i);
+  EXPECT_EQ(map.removeBlocks(out), 0u);
+  EXPECT_EQ(map.blockCount(), 100u - out.size());
+  EXPECT_EQ(map.blocksElsewhere().size(), out.size());
+  EXPECT_EQ((*store)->stats().blocks, out.size());
+  EXPECT_EQ(sameBlocks(map, before), map.blockCount()) << "the blocks that stayed (some moved) are unchanged";
+  for (int32_t i = 0; i < 100; i += 3) EXPECT_TRUE(map.heldElsewhere(before.key(static_cast<size_t>(i))));
+  // Back, as fusion would bring them: by their keys.
+  for (int32_t i = 0; i < 100; i += 3) map.findOrAllocate(before.key(static_cast<size_t>(i)));
+  EXPECT_EQ(map.blockCount(), 100u);
+  EXPECT_EQ(map.blocksElsewhere().size(), 0u);
+  EXPECT_EQ(map.blocksTakenBack(), out.size());
+  EXPECT_EQ(sameBlocks(map, before), 100u);
+  EXPECT_EQ((*store)->stats().blocks, 0u);
+}
+
+TEST(MemoryBudget, ARunUnderABudgetStaysWithinItAndEndsWithTheMapOfARunWithout) {
+  const alg::PinholeCamera cam{262.5, 262.5, 159.75, 119.75, 320, 240, {0, 0, 0, 0, 0}};
+  drv::SyntheticParams sp;
+  sp.frames = 90;
+  sp.camera = cam;
+  sp.trajectory = "orbit";
+  sp.scale = 3.0;  // a room 12 m across: the camera sees a part of it at a time
+  const Trajectory truth = drv::syntheticTrajectory(sp);
+  const drv::SyntheticScene scene = drv::SyntheticScene::room().scaled(3.0f);
+  FrontendParams params;
+  params.quality_enabled = false;  // refinement writes back from snapshots of what is in memory
+  params.refine.enabled = false;
+  params.loop_closure.enabled = false;
+  params.relocalization.enabled = false;
+  // Poses given: both runs fuse the same frames at the same poses.
+  Frontend free(cam, params);
+  params.tsdf.max_resident_mib = 2.0;
+  Frontend budgeted(cam, params);
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  budgeted.setBlockBacking(store->get());
+  const size_t budget = 2 << 20;
+  size_t most = 0;
+  for (int i = 0; i < sp.frames; ++i) {
+    const Eigen::Isometry3d& T = truth[static_cast<size_t>(i)].T_world_cam;
+    RgbdFrame f = test::syntheticFrame(scene, cam, T, true, i);
+    f.stamp_ns = truth[static_cast<size_t>(i)].stamp_ns;
+    free.process(f, &T);
+    budgeted.process(f, &T);
+    most = std::max(most, budgeted.map().memory().bytes);
+  }
+  const MemoryCounters m = budgeted.memoryCounters();
+  std::printf("budget 2 MiB: free run %.1f MiB; resident at most %.2f MiB, %llu moved out, %llu back\n",
+              static_cast<double>(free.map().memory().bytes) / (1 << 20), static_cast<double>(most) / (1 << 20),
+              static_cast<unsigned long long>(m.evicted), static_cast<unsigned long long>(m.taken_back));
+  EXPECT_GT(free.map().memory().bytes, 2 * budget) << "the scene needs more than the budget";
+  EXPECT_LE(most, budget) << "resident voxels after each frame";
+  EXPECT_GT(m.evicted, 100u);
+  EXPECT_EQ(m.lost, 0u);
+  budgeted.restoreEvicted();
+  ASSERT_EQ(budgeted.map().blockCount(), free.map().blockCount());
+  EXPECT_EQ(sameBlocks(free.map(), budgeted.map()), free.map().blockCount())
+      << "blocks moved out and back: the same map, bit for bit";
+}
+
+}  // namespace
+}  // namespace hxmap::rt
