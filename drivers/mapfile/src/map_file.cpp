@@ -154,8 +154,13 @@ Expected<MapFileInfo> parseHeader(const std::string& path, Cursor& c) {
     return Error{fmt::format("{}: blocks of {}^3 voxels of {} bytes, this build uses {}^3 of {}", path, block_side,
                              voxel_bytes, alg::kBlockSide, kVoxelRecordBytes)};
   }
-  if (!(info.tsdf.voxel_size_m > 0) || !(info.tsdf.truncation_m > 0) || !(info.tsdf.max_weight > 0)) {
-    return Error{path + ": header holds a voxel size, truncation or weight cap that is not positive"};
+  // The ranges the configuration accepts (config.cpp), so that a map file
+  // never makes a map the configuration could not.
+  const alg::TsdfParams& t = info.tsdf;
+  if (!(t.voxel_size_m >= 0.002 && t.voxel_size_m <= 0.5) || !(t.truncation_m >= 0.004 && t.truncation_m <= 2) ||
+      !(t.max_weight >= 1 && t.max_weight <= 1e4)) {
+    return Error{fmt::format("{}: header holds voxel size {} m, truncation {} m, weight cap {}: out of range", path,
+                             t.voxel_size_m, t.truncation_m, t.max_weight)};
   }
   frames[kFramesField - 1] = 0;
   info.frames = frames;
@@ -393,9 +398,12 @@ class RecordReader {
         continue;
       }
       const alg::BlockKey k(key[0], key[1], key[2]);
-      if (out_.map.find(k) >= 0) {
-        if (Status s = bad(fmt::format("block {} at offset {}: key ({}, {}, {}) a second time", i + 1, at, key[0],
-                                       key[1], key[2]));
+      // Keys pack into 21 bits per axis (packBlockKey): a key beyond is not
+      // one a map could hold.
+      const auto outside = [](int32_t v) { return v < -(1 << 20) || v >= (1 << 20); };
+      if (outside(key[0]) || outside(key[1]) || outside(key[2]) || out_.map.find(k) >= 0) {
+        if (Status s = bad(fmt::format("block {} at offset {}: key ({}, {}, {}) out of range or a second time", i + 1,
+                                       at, key[0], key[1], key[2]));
             !s) {
           return s;
         }
@@ -441,9 +449,17 @@ class RecordReader {
         for (int col = 0; col < 3; ++col) T.linear()(r, col) = pose[3 * r + col];
         T.translation()[r] = pose[9 + r];
       }
-      if (check != crc || !T.matrix().allFinite()) {
-        if (Status s = bad(fmt::format("keyframe {} of {} (id {}) at offset {}: checksum mismatch", i + 1,
-                                       out_.info.keyframes, id, at));
+      bool sane = T.matrix().allFinite() &&
+                  (T.linear().transpose() * T.linear() - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+                  (n == 0 || width == 32);  // ORB descriptors
+      for (uint32_t j = 0; sane && j < n; ++j) {
+        float q[3];
+        std::memcpy(q, p + static_cast<size_t>(n) * width + j * 3 * sizeof(float), sizeof q);
+        sane = std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]);
+      }
+      if (check != crc || !sane) {
+        if (Status s = bad(fmt::format("keyframe {} of {} (id {}) at offset {}: checksum mismatch or not a keyframe",
+                                       i + 1, out_.info.keyframes, id, at));
             !s) {
           return s;
         }
@@ -503,7 +519,11 @@ Expected<LoadedMap> loadMap(const std::string& path, const MapLoadOptions& optio
                             const alg::RelocalizationParams& relocalization) {
   auto data = readWholeFile(path);
   if (!data) return Error{data.message()};
-  const std::string& bytes = *data;
+  return parseMap(*data, path, options, relocalization);
+}
+
+Expected<LoadedMap> parseMap(const std::string& bytes, const std::string& path, const MapLoadOptions& options,
+                             const alg::RelocalizationParams& relocalization) {
   Cursor c(bytes.data(), bytes.size());
   auto info = parseHeader(path, c);
   if (!info) return Error{info.message()};

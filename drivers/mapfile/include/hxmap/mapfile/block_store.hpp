@@ -39,7 +39,7 @@ class BlockStore : public alg::BlockBacking {
   bool put(const alg::BlockKey& key, const alg::VoxelBlock& block) override;
   bool take(const alg::BlockKey& key, alg::VoxelBlock& out) override;
   /// Forgets every block (a map rebuilt from scratch no longer needs them).
-  void clear();
+  void clear() override;
 
   const std::string& path() const { return path_; }
   BlockStoreStats stats() const;

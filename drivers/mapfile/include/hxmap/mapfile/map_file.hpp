@@ -87,6 +87,10 @@ Expected<MapSaveStats> saveMap(const std::string& path, const alg::TsdfMap& map,
 Expected<LoadedMap> loadMap(const std::string& path, const MapLoadOptions& options = {},
                             const alg::RelocalizationParams& relocalization = {});
 
+/// loadMap on a file's bytes; `path` names it in errors.
+Expected<LoadedMap> parseMap(const std::string& bytes, const std::string& path, const MapLoadOptions& options = {},
+                             const alg::RelocalizationParams& relocalization = {});
+
 /// A map file's header and trailer, checked, and the bytes of voxel data
 /// (records are stepped over by their stored sizes, not decompressed).
 Expected<MapFileInfo> readMapInfo(const std::string& path);
