@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -52,20 +53,27 @@ std::string mapStatistics(const alg::TsdfMap& map) {
   return text;
 }
 
+/// The map file, or nothing with the error logged.
+std::optional<drv::LoadedMap> loadLogged(const MapOptions& o) {
+  drv::MapLoadOptions lo;
+  lo.skip_bad = o.skip_bad;
+  auto loaded = drv::loadMap(o.file, lo);
+  if (!loaded) {
+    spdlog::error("{}", loaded.message());
+    return std::nullopt;
+  }
+  return std::move(*loaded);
+}
+
 int infoCommand(const MapOptions& o) {
   auto info = drv::readMapInfo(o.file);
   if (!info) {
     spdlog::error("{}", info.message());
     return 1;
   }
-  drv::MapLoadOptions lo;
-  lo.skip_bad = o.skip_bad;
   const auto t0 = std::chrono::steady_clock::now();
-  auto loaded = drv::loadMap(o.file, lo);
-  if (!loaded) {
-    spdlog::error("{}", loaded.message());
-    return 1;
-  }
+  auto loaded = loadLogged(o);
+  if (!loaded) return 1;
   const double load_s = secondsSince(t0);
   const drv::MapFileInfo& i = *info;
   const double raw = static_cast<double>(i.blocks) * alg::kBlockVoxels * 24;
@@ -90,13 +98,8 @@ int infoCommand(const MapOptions& o) {
 }
 
 int meshCommand(const MapOptions& o, const alg::MeshParams& params) {
-  drv::MapLoadOptions lo;
-  lo.skip_bad = o.skip_bad;
-  auto loaded = drv::loadMap(o.file, lo);
-  if (!loaded) {
-    spdlog::error("{}", loaded.message());
-    return 1;
-  }
+  auto loaded = loadLogged(o);
+  if (!loaded) return 1;
   const alg::TriangleMesh mesh = alg::extractMesh(loaded->map, params);
   if (auto s = drv::writePly(o.out, mesh); !s) {
     spdlog::error("{}", s.message());
@@ -111,13 +114,8 @@ int exportCommand(const MapOptions& o) {
     spdlog::error("map export: unknown --format '{}' (vdb)", o.format);
     return 2;
   }
-  drv::MapLoadOptions lo;
-  lo.skip_bad = o.skip_bad;
-  auto loaded = drv::loadMap(o.file, lo);
-  if (!loaded) {
-    spdlog::error("{}", loaded.message());
-    return 1;
-  }
+  auto loaded = loadLogged(o);
+  if (!loaded) return 1;
   const auto t0 = std::chrono::steady_clock::now();
   auto exported = exportVdb(o.out, loaded->map);
   if (!exported) {

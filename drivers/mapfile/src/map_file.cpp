@@ -375,18 +375,13 @@ class RecordReader {
       c_.get(stored);
       c_.get(crc);
       if (tag != kBlockTag || stored > max_stored || stored > end_ - c_.offset()) {
-        if (Status s = bad(fmt::format("block {} of {}: no block record at offset {}", i + 1, out_.info.blocks, at));
-            !s) {
-          return s;
-        }
-        if (!resync(at + 1, kBlockTag)) return Status::ok();  // no later block: the rest were lost
-        ++out_.skipped_blocks;
+        bool done = false;
+        const std::string what = fmt::format("block {} of {}: no block record at offset {}", i + 1, out_.info.blocks, at);
+        if (Status s = skipBadHead(what, at, kBlockTag, out_.skipped_blocks, done); !s || done) return s;
         continue;
       }
       const char* payload = c_.here();
-      uint32_t check = crc32c(payload - kBlockRecordHead, kBlockRecordHead - 4);
-      check = crc32c(payload, stored, check);
-      c_.skip(stored);
+      const uint32_t check = recordCrc(kBlockRecordHead, stored);
       const size_t got = check == crc ? ZSTD_decompressDCtx(dctx.get(), raw.data(), raw.size(), payload, stored) : 0;
       if (check != crc || ZSTD_isError(got) || got != kBlockRawBytes) {
         if (Status s = bad(fmt::format("block {} of {} at offset {} ({}, {}, {}): checksum mismatch", i + 1,
@@ -431,19 +426,14 @@ class RecordReader {
       c_.get(crc);
       const uint64_t payload = static_cast<uint64_t>(n) * (width + 3 * sizeof(float));
       if (tag != kKeyframeTag || width > 256 || payload > end_ - c_.offset()) {
-        if (Status s =
-                bad(fmt::format("keyframe {} of {}: no keyframe record at offset {}", i + 1, out_.info.keyframes, at));
-            !s) {
-          return s;
-        }
-        if (!resync(at + 1, kKeyframeTag)) return Status::ok();
-        ++out_.skipped_keyframes;
+        bool done = false;
+        const std::string what =
+            fmt::format("keyframe {} of {}: no keyframe record at offset {}", i + 1, out_.info.keyframes, at);
+        if (Status s = skipBadHead(what, at, kKeyframeTag, out_.skipped_keyframes, done); !s || done) return s;
         continue;
       }
       const char* p = c_.here();
-      uint32_t check = crc32c(p - kKeyframeRecordHead, kKeyframeRecordHead - 4);
-      check = crc32c(p, payload, check);
-      c_.skip(payload);
+      const uint32_t check = recordCrc(kKeyframeRecordHead, payload);
       Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
       for (int r = 0; r < 3; ++r) {
         for (int col = 0; col < 3; ++col) T.linear()(r, col) = pose[3 * r + col];
@@ -488,6 +478,24 @@ class RecordReader {
   /// A corrupt record: an error naming it, or (skip_bad) a logged skip.
   Status bad(const std::string& what) const {
     if (!options_.skip_bad) return Error{path_ + ": " + what + " (--skip-bad leaves corrupt records out)"};
+    return Status::ok();
+  }
+  /// The CRC-32C of the record whose head (`head` bytes, its own CRC last)
+  /// ends at the cursor and of the `payload` bytes after, which the cursor
+  /// then steps over.
+  uint32_t recordCrc(size_t head, uint64_t payload) {
+    const char* p = c_.here();
+    const uint32_t crc = crc32c(p, payload, crc32c(p - head, head - 4));
+    c_.skip(payload);
+    return crc;
+  }
+  /// A record head that is not one (`what`, at `at`): an error, or with
+  /// skip_bad on to the next record tagged `tag` (`done` when none is left:
+  /// the rest were lost), counted in `skipped`.
+  Status skipBadHead(const std::string& what, size_t at, uint32_t tag, uint64_t& skipped, bool& done) {
+    if (Status s = bad(what); !s) return s;
+    done = !resync(at + 1, tag);
+    if (!done) ++skipped;
     return Status::ok();
   }
   /// Moves the cursor to the next record tagged `tag` from `from`; false
