@@ -65,10 +65,11 @@ struct FrontendParams {
   /// and a new one starts (resume_new_map_otherwise), or the run is told
   /// to stop (resumeFailed).
   /// The memory budget (tsdf.max_resident_mib) needs a backing
-  /// (setBlockBacking): past the budget the blocks farthest from the camera
-  /// leave memory, down to 85 % of it; blocks held there come back ahead of
+  /// (setBlockBacking): from 90 % of the budget the blocks farthest from the
+  /// camera leave memory, down to 80 % of it (max_evictions_per_frame a frame); blocks held there come back ahead of
   /// the camera (those in the predicted view, nearest first, as many as the
   /// budget has room for) or when fusion reaches them.
+  int max_evictions_per_frame = 96;  ///< blocks moved out per frame at most
   int max_prefetch_per_frame = 512;  ///< blocks brought back ahead of the camera per frame at most
   int resume_relocalize_frames = 90;
   bool resume_new_map_otherwise = false;
