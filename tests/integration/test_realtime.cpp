@@ -207,7 +207,11 @@ TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFronten
   options_.fps = 4;  // ample slack, also under ThreadSanitizer
   options_.scheduler.shed_after_periods = 1000;
   const RealtimeStats s = runRealtime(frames_, fe, options_, stop_);
-  EXPECT_EQ(s.keyframes_to_feedback + s.feedback_ring_full, fe.keyframes()) << s.report;
+  // Keyframes go to the feedback thread in the frontend's slack: under
+  // ThreadSanitizer on a loaded machine (a 97 ms map copy, frames of 118 ms
+  // at a 250 ms period) the last ones may find none before the stream ends.
+  EXPECT_LE(s.keyframes_to_feedback + s.feedback_ring_full, fe.keyframes()) << s.report;
+  EXPECT_GT(s.keyframes_to_feedback, 0u) << s.report;
   EXPECT_GT(s.feedback_windows_solved, 0u) << s.report;
   // One window per batch of keyframes taken (solved, or skipped at effort 0).
   EXPECT_LE(s.feedback_windows_solved + s.feedback_windows_skipped, s.keyframes_to_feedback);
