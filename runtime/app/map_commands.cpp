@@ -66,16 +66,11 @@ std::optional<drv::LoadedMap> loadLogged(const MapOptions& o) {
 }
 
 int infoCommand(const MapOptions& o) {
-  auto info = drv::readMapInfo(o.file);
-  if (!info) {
-    spdlog::error("{}", info.message());
-    return 1;
-  }
   const auto t0 = std::chrono::steady_clock::now();
   auto loaded = loadLogged(o);
   if (!loaded) return 1;
   const double load_s = secondsSince(t0);
-  const drv::MapFileInfo& i = *info;
+  const drv::MapFileInfo& i = loaded->info;
   const double raw = static_cast<double>(i.blocks) * alg::kBlockVoxels * 24;
   std::string text = fmt::format(
       "file: {} ({:.2f} MiB), format version {}\n"

@@ -15,6 +15,8 @@
 #include <fmt/format.h>
 #include <zstd.h>
 
+#include "voxel_bytes.hpp"
+
 namespace hxmap::drv {
 
 namespace {
@@ -27,11 +29,6 @@ constexpr uint32_t kBlockTag = 0x314b4c42;     // "BLK1"
 constexpr uint32_t kKeyframeTag = 0x3152464b;  // "KFR1"
 constexpr size_t kFramesField = 64;
 constexpr int kZstdLevel = 1;  // fast; level 3 saved 6 % more on the fr1/xyz map at twice the time
-
-static_assert(sizeof(alg::VoxelGeometry) == 8 && sizeof(alg::VoxelColor) == 4 && sizeof(alg::VoxelStats) == 12,
-              "the voxel record layout of the map file");
-constexpr size_t kVoxelRecordBytes = sizeof(alg::VoxelGeometry) + sizeof(alg::VoxelColor) + sizeof(alg::VoxelStats);
-constexpr size_t kBlockRawBytes = alg::kBlockVoxels * kVoxelRecordBytes;
 
 // The fixed layout of the header (version 1), in file order.
 constexpr size_t kHeaderBytes = 8 + 4 + 4 + 3 * 8 + 4 + 4 + 8 + 8 + kFramesField + 4;
@@ -202,20 +199,6 @@ Expected<std::string> readWholeFile(const std::string& path) {
   return data;
 }
 
-void packBlock(const alg::VoxelBlock& b, std::string& raw) {
-  raw.resize(kBlockRawBytes);
-  char* p = raw.data();
-  std::memcpy(p, b.geo, sizeof b.geo);
-  std::memcpy(p + sizeof b.geo, b.color, sizeof b.color);
-  std::memcpy(p + sizeof b.geo + sizeof b.color, b.stats, sizeof b.stats);
-}
-
-void unpackBlock(const char* raw, alg::VoxelBlock& b) {
-  std::memcpy(b.geo, raw, sizeof b.geo);
-  std::memcpy(b.color, raw + sizeof b.geo, sizeof b.color);
-  std::memcpy(b.stats, raw + sizeof b.geo + sizeof b.color, sizeof b.stats);
-}
-
 /// Writes to a temporary file beside the target and renames it over the
 /// target once all of it is on disk.
 class AtomicFile {
@@ -382,6 +365,7 @@ class RecordReader {
       }
       const char* payload = c_.here();
       const uint32_t check = recordCrc(kBlockRecordHead, stored);
+      out_.info.block_bytes += stored;
       const size_t got = check == crc ? ZSTD_decompressDCtx(dctx.get(), raw.data(), raw.size(), payload, stored) : 0;
       if (check != crc || ZSTD_isError(got) || got != kBlockRawBytes) {
         if (Status s = bad(fmt::format("block {} of {} at offset {} ({}, {}, {}): checksum mismatch", i + 1,

@@ -98,24 +98,43 @@ bool blockInView(const Eigen::Vector3f& c, float radius, const alg::PinholeCamer
   return u > -mu && u < static_cast<float>(cam.width) + mu && v > -mv && v < static_cast<float>(cam.height) + mv;
 }
 
+/// The center of block `key` in the frame T_cam_world maps the world to.
+Eigen::Vector3f blockCenter(const Eigen::Isometry3f& T_cam_world, const alg::BlockKey& key, float block_size) {
+  return T_cam_world * (key.cast<float>() * block_size + Eigen::Vector3f::Constant(0.5f * block_size));
+}
+
 }  // namespace
+
+size_t Frontend::budgetBytes() const { return static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20)); }
+
+void Frontend::bringBack(const std::vector<uint64_t>& keys) {
+  const uint64_t lost_before = map_.blocksLostInBacking();
+  for (const uint64_t k : keys) map_.findOrAllocate(alg::unpackBlockKey(k));
+  memory_counters_.lost += map_.blocksLostInBacking() - lost_before;
+  countTakenBack();
+}
+
+void Frontend::countTakenBack() {
+  // The map's own count starts over when a loop closure replaces it.
+  const uint64_t taken = map_.blocksTakenBack();
+  memory_counters_.taken_back += taken >= taken_back_seen_ ? taken - taken_back_seen_ : taken;
+  taken_back_seen_ = taken;
+}
 
 void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
   if (map_.blocksElsewhere().empty()) return;
   const auto t0 = std::chrono::steady_clock::now();
   const Eigen::Isometry3f T_cam_world = T_world_predicted.inverse().cast<float>();
-  const float half = 0.5f * map_.blockSize(), radius = half * std::sqrt(3.0f);
+  const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);
   const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
   std::vector<std::pair<float, uint64_t>> wanted;  // depth, packed key
   for (const uint64_t k : map_.blocksElsewhere()) {
-    const Eigen::Vector3f c =
-        T_cam_world * (alg::unpackBlockKey(k).cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(half));
+    const Eigen::Vector3f c = blockCenter(T_cam_world, alg::unpackBlockKey(k), map_.blockSize());
     if (blockInView(c, radius, camera_, max_depth)) wanted.emplace_back(c.z(), k);
   }
   // Nearest first, as many as fit in the budget (a view that holds more
   // than the budget gets its nearest part) and the per-frame cap.
-  const size_t budget = static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20));
-  const size_t resident = map_.memory().bytes;
+  const size_t budget = budgetBytes(), resident = map_.memory().bytes;
   const size_t room = resident < budget ? (budget - resident) / sizeof(alg::VoxelBlock) : 0;
   const size_t cap = std::min(room, static_cast<size_t>(std::max(0, params_.max_prefetch_per_frame)));
   if (wanted.size() > cap) {
@@ -123,23 +142,20 @@ void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
     memory_counters_.prefetch_capped += wanted.size() - cap;
     wanted.resize(cap);
   }
-  const uint64_t lost_before = map_.blocksLostInBacking();
-  for (const auto& [z, k] : wanted) map_.findOrAllocate(alg::unpackBlockKey(k));
-  memory_counters_.prefetched += wanted.size();
-  memory_counters_.lost += map_.blocksLostInBacking() - lost_before;
+  std::vector<uint64_t> keys;
+  keys.reserve(wanted.size());
+  for (const auto& [z, k] : wanted) keys.push_back(k);
+  bringBack(keys);
+  memory_counters_.prefetched += keys.size();
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   memory_counters_.prefetch_ms_total += ms;
   memory_counters_.prefetch_ms_max = std::max(memory_counters_.prefetch_ms_max, ms);
 }
 
 void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
-  const size_t budget = static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20));
-  const size_t resident = map_.memory().bytes;
+  const size_t budget = budgetBytes(), resident = map_.memory().bytes;
   memory_counters_.resident_bytes_max = std::max(memory_counters_.resident_bytes_max, resident);
-  // The map's own count starts over when a loop closure replaces it.
-  const uint64_t taken = map_.blocksTakenBack();
-  memory_counters_.taken_back += taken >= taken_back_seen_ ? taken - taken_back_seen_ : taken;
-  taken_back_seen_ = taken;
+  countTakenBack();  // fusion's too
   // DESIGN: from 90 % of the budget, down to 80 %, at most
   // max_evictions_per_frame blocks a frame (about 50 us each): a frame maps
   // far fewer new blocks than that, so the budget holds without a long
@@ -153,13 +169,12 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
   count = std::min(count, static_cast<size_t>(std::max(1, params_.max_evictions_per_frame)));
   if (count == 0) return;
   const Eigen::Isometry3f T_cam_world = T_world_cam.inverse().cast<float>();
-  const float half = 0.5f * map_.blockSize(), radius = half * std::sqrt(3.0f);
+  const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);
   const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
   std::vector<std::pair<float, int32_t>> far;  // -score, index
   far.reserve(map_.blockCount());
   for (size_t i = 0; i < map_.blockCount(); ++i) {
-    const Eigen::Vector3f c =
-        T_cam_world * (map_.key(i).cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(half));
+    const Eigen::Vector3f c = blockCenter(T_cam_world, map_.key(i), map_.blockSize());
     const float d = c.norm() * (blockInView(c, radius, camera_, max_depth) ? 0.25f : 1.0f);
     far.emplace_back(-d, static_cast<int32_t>(i));
   }
@@ -176,13 +191,7 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
 }
 
 void Frontend::restoreEvicted() {
-  const std::vector<uint64_t> keys(map_.blocksElsewhere().begin(), map_.blocksElsewhere().end());
-  const uint64_t lost_before = map_.blocksLostInBacking();
-  for (const uint64_t k : keys) map_.findOrAllocate(alg::unpackBlockKey(k));
-  memory_counters_.lost += map_.blocksLostInBacking() - lost_before;
-  const uint64_t taken = map_.blocksTakenBack();
-  memory_counters_.taken_back += taken >= taken_back_seen_ ? taken - taken_back_seen_ : taken;
-  taken_back_seen_ = taken;
+  bringBack(std::vector<uint64_t>(map_.blocksElsewhere().begin(), map_.blocksElsewhere().end()));
 }
 
 void Frontend::checkResume(const FrameResult& r) {

@@ -47,7 +47,7 @@ struct MapFileInfo {
   uint64_t blocks = 0;     ///< in the file
   uint64_t keyframes = 0;  ///< in the file
   uint64_t file_bytes = 0;
-  uint64_t block_bytes = 0;  ///< compressed voxel data
+  uint64_t block_bytes = 0;  ///< compressed voxel data (of the records read)
 };
 
 struct MapLoadOptions {

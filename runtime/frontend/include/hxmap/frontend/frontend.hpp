@@ -304,6 +304,11 @@ class Frontend {
   void prefetch(const Eigen::Isometry3d& T_world_predicted);
   /// Memory budget: past it, the blocks farthest from the camera leave.
   void enforceBudget(const Eigen::Isometry3d& T_world_cam);
+  size_t budgetBytes() const;
+  /// Blocks held elsewhere (packed keys) back into the map, counted.
+  void bringBack(const std::vector<uint64_t>& keys);
+  /// Adds the blocks the map took back since the last count (prefetch, fusion).
+  void countTakenBack();
   void makeLoopCloser();
 
   alg::PinholeCamera camera_;
