@@ -578,7 +578,18 @@ IcpResult trackPointToPlane(const PreprocessedFrame& frame, const std::vector<Mo
   result.mean_abs_residual_m = last.inliers > 0 ? last.abs_sum * final_stride * final_stride / last.inliers : 0.0;
   result.photometric_mean_abs = photometric_n > 0 ? photometric_abs_sum / photometric_n : 0.0;
   result.information = last.eq.H() * static_cast<double>(final_stride * final_stride);
-  Eigen::SelfAdjointEigenSolver<Matrix6d> eig(result.information);
+  // DESIGN: the update is in the world frame (T <- exp(xi) T), where a
+  // rotation turns about the world's origin: far from it (a long flight,
+  // a street 72 m from where the map began) a small rotation moves the
+  // camera by meters, the rotation block outgrows the translation block
+  // by the distance squared, and every frame looked degenerate. The test
+  // takes the information about the camera's center instead: xi = M xi_c,
+  // omega the same and v = v_c + c x omega, so H_c = M^T H M, the same
+  // wherever the map's origin is.
+  Matrix6d M = Matrix6d::Identity();
+  M.block<3, 3>(3, 0) = skew(T_world_cam.translation());
+  const Matrix6d information_at_camera = M.transpose() * result.information * M;
+  Eigen::SelfAdjointEigenSolver<Matrix6d> eig(information_at_camera);
   const double emax = eig.eigenvalues().maxCoeff();
   result.min_eigen_ratio = emax > 0 ? eig.eigenvalues().minCoeff() / emax : 0.0;
   const Eigen::Isometry3d motion = T_init.inverse() * T_world_cam;

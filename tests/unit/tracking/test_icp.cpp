@@ -19,8 +19,10 @@ class IcpTest : public ::testing::Test {
     traj_ = drv::syntheticTrajectory(sp);
   }
 
-  // Map from exact frames at ground-truth poses [first, last].
-  TsdfMap buildMap(int first, int last, double voxel_m) {
+  // Map from exact frames at ground-truth poses [first, last], in a world
+  // frame moved by `world` (the same images, other coordinates).
+  TsdfMap buildMap(int first, int last, double voxel_m,
+                   const Eigen::Isometry3d& world = Eigen::Isometry3d::Identity()) {
     TsdfParams tp;
     tp.voxel_size_m = voxel_m;
     tp.truncation_m = 4 * voxel_m;
@@ -28,8 +30,8 @@ class IcpTest : public ::testing::Test {
     for (int i = first; i <= last; i += 2) {
       const auto f = test::syntheticFrame(scene_, cam_, traj_[i].T_world_cam);
       const auto pre = preprocessFrame(f, cam_, pp_);
-      integrate(map,
-                {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam_, traj_[i].T_world_cam.cast<float>()});
+      integrate(map, {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam_,
+                      (world * traj_[i].T_world_cam).cast<float>()});
     }
     return map;
   }
@@ -61,6 +63,33 @@ TEST_F(IcpTest, RecoversKnownPerturbation) {
   const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
   EXPECT_LT(translationNorm(E), 0.001) << "translation error (m)";
   EXPECT_LT(rotationAngle(E) * 180.0 / M_PI, 0.1) << "rotation error (deg)";
+}
+
+TEST_F(IcpTest, FarFromTheMapsOriginTheSameViewIsAsWellConstrained) {
+  // The same frames mapped with the world's origin beside the camera and
+  // 80 m away (a long flight): tracking must neither fail nor call the
+  // view degenerate there (the update turns about the world's origin; the
+  // degeneracy test must not).
+  Eigen::Isometry3d far = Eigen::Isometry3d::Identity();
+  far.translation() = Eigen::Vector3d(60.0, -50.0, 8.0);
+  Vector6d xi;
+  xi << 0.01, -0.008, 0.012, 0.02, -0.015, 0.01;
+  double ratio[2] = {0, 0};
+  for (int k = 0; k < 2; ++k) {
+    const Eigen::Isometry3d world = k == 0 ? Eigen::Isometry3d::Identity() : far;
+    const TsdfMap map = buildMap(20, 40, 0.01, world);
+    const Eigen::Isometry3d T_ref = world * traj_[30].T_world_cam;
+    const Eigen::Isometry3d T_true = T_ref * expSE3(xi);  // the same motion in the camera's frame
+    const auto pre = preprocessFrame(test::syntheticFrame(scene_, cam_, traj_[30].T_world_cam * expSE3(xi)), cam_, pp_);
+    TrackingParams tp;
+    tp.iterations_finest = 10;
+    const IcpResult r = trackPointToPlane(pre, modelAt(map, T_ref), T_ref, tp);
+    ASSERT_TRUE(r.ok) << (k ? "far: " : "near: ") << r.failure;
+    const Eigen::Isometry3d E = T_true.inverse() * r.T_world_cam;
+    EXPECT_LT(translationNorm(E), 0.001) << "translation error (m)";
+    ratio[k] = r.min_eigen_ratio;
+  }
+  EXPECT_NEAR(ratio[1], ratio[0], 0.1 * ratio[0]) << "smallest/largest eigenvalue near and far from the origin";
 }
 
 TEST_F(IcpTest, PhotometricTermAloneRecoversPerturbation) {
