@@ -432,6 +432,7 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
   p.live_file = std::make_unique<LiveTrajectoryFile>(std::move(*live_file));
   p.parallel = makeParallelFor(c.runtime.threads);
   p.params = frontendParams(c);
+  p.params.wait_for_blocks = !p.realtime;  // a live frame does not wait on the disk
   p.frontend = std::make_unique<Frontend>(in.cam, p.params, p.parallel);
   if (c.tsdf.max_resident_mib > 0) {
     // Scratch space beside the outputs, removed when the run ends.
@@ -804,13 +805,18 @@ std::string memoryText(const HxmapConfig& c, const MemoryCounters& m, const drv:
                        size_t frame_count) {
   const double frames = std::max<double>(1.0, static_cast<double>(frame_count));
   return fmt::format(
-      "memory: budget {:g} MiB, voxels resident at most {:.1f} MiB ({} frames over the budget); {} blocks moved out, {} brought back ({} ahead "
-      "of the camera, {} in view left for later frames), {} lost; store {:.1f} MiB on disk, {:.1f} MiB written; "
-      "moving out {:.2f} ms per frame (max {:.1f}), bringing back {:.2f} ms (max {:.1f})\n",
-      c.tsdf.max_resident_mib, static_cast<double>(m.resident_bytes_max) / (1 << 20), m.frames_over_budget, m.evicted, m.taken_back,
-      m.prefetched, m.prefetch_capped, m.lost, static_cast<double>(s.file_bytes) / (1 << 20),
-      static_cast<double>(s.bytes_written) / (1 << 20), m.evict_ms_total / frames, m.evict_ms_max,
-      m.prefetch_ms_total / frames, m.prefetch_ms_max);
+             "memory: budget {:g} MiB, voxels resident at most {:.1f} MiB ({} frames over the budget); {} blocks moved "
+             "out, {} brought back ({} ahead "
+             "of the camera, {} in view left for later frames, {} of them not read yet), {} lost; store {:.1f} MiB on "
+             "disk, {:.1f} MiB written; "
+             "moving out {:.2f} ms per frame (max {:.1f}), bringing back {:.2f} ms (max {:.1f})\n",
+             c.tsdf.max_resident_mib, static_cast<double>(m.resident_bytes_max) / (1 << 20), m.frames_over_budget,
+             m.evicted, m.taken_back, m.prefetched, m.prefetch_capped + m.prefetch_not_ready, m.prefetch_not_ready,
+             m.lost, static_cast<double>(s.file_bytes) / (1 << 20), static_cast<double>(s.bytes_written) / (1 << 20),
+             m.evict_ms_total / frames, m.evict_ms_max, m.prefetch_ms_total / frames, m.prefetch_ms_max) +
+         (s.write_failures > 0
+              ? fmt::format("memory: the disk refused {} blocks (kept in memory instead)\n", s.write_failures)
+              : std::string());
 }
 
 std::string resumeText(const RunPipeline& p) {

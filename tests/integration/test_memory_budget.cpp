@@ -53,6 +53,9 @@ TEST(MemoryBudget, BlocksMovedOutAndBroughtBackLeaveTheTsdfAndItsStatisticsIdent
   EXPECT_EQ((*store)->stats().blocks, out.size());
   EXPECT_EQ(sameBlocks(map, before), map.blockCount()) << "the blocks that stayed (some moved) are unchanged";
   for (int32_t i = 0; i < 100; i += 3) EXPECT_TRUE(map.heldElsewhere(before.key(static_cast<size_t>(i))));
+  (*store)->flush();  // on disk, compressed: what comes back is read from the file
+  EXPECT_EQ((*store)->stats().queued, 0u);
+  EXPECT_GT((*store)->stats().file_bytes, 0u);
   // Back, as fusion would bring them: by their keys.
   for (int32_t i = 0; i < 100; i += 3) map.findOrAllocate(before.key(static_cast<size_t>(i)));
   EXPECT_EQ(map.blockCount(), 100u);
@@ -60,6 +63,76 @@ TEST(MemoryBudget, BlocksMovedOutAndBroughtBackLeaveTheTsdfAndItsStatisticsIdent
   EXPECT_EQ(map.blocksTakenBack(), out.size());
   EXPECT_EQ(sameBlocks(map, before), 100u);
   EXPECT_EQ((*store)->stats().blocks, 0u);
+}
+
+TEST(MemoryBudget, BlocksTakenBackWhileTheWriterIsAtWorkOrReadAheadAreTheBlocksPutAndAClearDropsAll) {
+  // The store's writer compresses and writes behind put(): a block taken
+  // back at once comes from its queue, one taken later from the file,
+  // some while being written; each must be the block put, once.
+  alg::TsdfParams p;
+  alg::TsdfMap map(p);
+  std::mt19937 rng(5);
+  constexpr int kBlocks = 600;
+  for (int i = 0; i < kBlocks; ++i) {
+    alg::VoxelBlock& b = map.block(static_cast<size_t>(map.findOrAllocate({i % 30, i / 30, 1})));
+    for (int v = 0; v < alg::kBlockVoxels; ++v) {
+      b.geo[v] = {static_cast<float>(rng() % 1000) * 1e-4f, static_cast<float>(rng() % 64)};
+      b.color[v] = {static_cast<uint8_t>(rng()), static_cast<uint8_t>(i), 2, 0};
+      b.stats[v] = {static_cast<uint32_t>(rng() % 50), 0.01f * static_cast<float>(i), 0.002f};
+    }
+  }
+  const alg::TsdfMap before = map;
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  map.setBacking(store->get());
+  for (int round = 0; round < 3; ++round) {
+    std::vector<int32_t> all(map.blockCount());
+    for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int32_t>(i);
+    EXPECT_EQ(map.removeBlocks(all), 0u);
+    // Every 7th back at once (most still queued), then the rest in order
+    // while the writer works through them.
+    for (int i = 0; i < kBlocks; i += 7) map.findOrAllocate(before.key(static_cast<size_t>(i)));
+    if (round == 1) (*store)->flush();
+    for (int i = 0; i < kBlocks; ++i) map.findOrAllocate(before.key(static_cast<size_t>(i)));
+    ASSERT_EQ(map.blockCount(), static_cast<size_t>(kBlocks));
+    EXPECT_EQ(sameBlocks(map, before), static_cast<size_t>(kBlocks)) << "round " << round;
+    EXPECT_EQ((*store)->stats().blocks, 0u);
+    EXPECT_EQ(map.blocksLostInBacking(), 0u);
+  }
+  // Read ahead (the predicted view's hint): every other block, while the
+  // writer still has some to write; those come back from the read-ahead.
+  {
+    std::vector<int32_t> all(map.blockCount());
+    for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int32_t>(i);
+    EXPECT_EQ(map.removeBlocks(all), 0u);
+    std::vector<alg::BlockKey> hint;
+    for (int i = 0; i < kBlocks; i += 2) hint.push_back(before.key(static_cast<size_t>(i)));
+    (*store)->prefetch(hint);  // only blocks already on disk are read ahead
+    (*store)->flush();
+    (*store)->prefetch(hint);
+    (*store)->flush();
+    for (const alg::BlockKey& k : hint) EXPECT_TRUE((*store)->ready(k));
+    EXPECT_FALSE((*store)->ready(before.key(1)));
+    EXPECT_EQ((*store)->stats().read_ahead, hint.size());
+    for (int i = 0; i < kBlocks; ++i) map.findOrAllocate(before.key(static_cast<size_t>(i)));
+    EXPECT_EQ(sameBlocks(map, before), static_cast<size_t>(kBlocks)) << "read ahead";
+    EXPECT_EQ((*store)->stats().read_ahead_used, hint.size());
+  }
+  const drv::BlockStoreStats s = (*store)->stats();
+  EXPECT_EQ(s.put, 4u * kBlocks);
+  EXPECT_EQ(s.taken, 4u * kBlocks);
+  EXPECT_EQ(s.read_failures, 0u);
+  // A clear while blocks are queued and being written: none comes back.
+  std::vector<int32_t> half;
+  for (int32_t i = 0; i < kBlocks; i += 2) half.push_back(i);
+  std::vector<alg::BlockKey> half_keys;
+  for (int32_t i : half) half_keys.push_back(map.key(static_cast<size_t>(i)));
+  map.removeBlocks(half);
+  (*store)->clear();
+  (*store)->flush();
+  EXPECT_EQ((*store)->stats().blocks, 0u);
+  alg::VoxelBlock out;
+  for (const alg::BlockKey& k : half_keys) EXPECT_FALSE((*store)->take(k, out));
 }
 
 TEST(MemoryBudget, ARunUnderABudgetStaysWithinItAndEndsWithTheMapOfARunWithout) {

@@ -144,7 +144,20 @@ void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
   }
   std::vector<uint64_t> keys;
   keys.reserve(wanted.size());
-  for (const auto& [z, k] : wanted) keys.push_back(k);
+  if (params_.wait_for_blocks) {
+    for (const auto& [z, k] : wanted) keys.push_back(k);
+  } else {
+    // The backing reads the whole view ahead on its own thread; what it
+    // has read comes back now, the rest in a later frame.
+    std::vector<alg::BlockKey> hint;
+    hint.reserve(wanted.size());
+    for (const auto& [z, k] : wanted) hint.push_back(alg::unpackBlockKey(k));
+    backing_->prefetch(hint);
+    for (size_t i = 0; i < hint.size(); ++i) {
+      if (backing_->ready(hint[i])) keys.push_back(wanted[i].second);
+    }
+    memory_counters_.prefetch_not_ready += hint.size() - keys.size();
+  }
   bringBack(keys);
   memory_counters_.prefetched += keys.size();
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -157,7 +170,9 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
   memory_counters_.resident_bytes_max = std::max(memory_counters_.resident_bytes_max, resident);
   countTakenBack();  // fusion's too
   // DESIGN: from 90 % of the budget, down to 80 %, at most
-  // max_evictions_per_frame blocks a frame (about 50 us each): a frame maps
+  // max_evictions_per_frame blocks a frame (a copy into the store's queue
+  // each, a few microseconds; the store compresses and writes them on its
+  // own thread; 50 us each when this thread did that): a frame maps
   // far fewer new blocks than that, so the budget holds without a long
   // frame. Moving out all that was needed at once cost 33 ms in one frame
   // after a loop closure replaced the map (a real-time run missed 26

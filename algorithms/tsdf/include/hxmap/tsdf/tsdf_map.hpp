@@ -105,6 +105,15 @@ class BlockBacking {
   virtual bool take(const BlockKey& key, VoxelBlock& out) = 0;
   /// Forgets every block (the map was rebuilt without them).
   virtual void clear() = 0;
+  /// A hint that these blocks are wanted soon (the predicted view),
+  /// replacing the previous hint: a backing that reads slowly may start
+  /// reading them in the background. take() is still how they come back.
+  virtual void prefetch(const std::vector<BlockKey>& keys) { (void)keys; }
+  /// False when take(key) would wait on a read that has not been done yet.
+  virtual bool ready(const BlockKey& key) const {
+    (void)key;
+    return true;
+  }
 };
 
 class TsdfMap {

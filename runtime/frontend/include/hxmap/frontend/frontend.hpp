@@ -71,6 +71,13 @@ struct FrontendParams {
   /// budget has room for) or when fusion reaches them.
   int max_evictions_per_frame = 96;  ///< blocks moved out per frame at most
   int max_prefetch_per_frame = 512;  ///< blocks brought back ahead of the camera per frame at most
+  /// Blocks in the predicted view that the backing has not read yet: true
+  /// (offline) brings them back at once, read on this thread, so the map is
+  /// the same whatever the timing; false (real time: a camera, --realtime)
+  /// leaves them to a later frame while the backing reads them ahead
+  /// (MemoryCounters::prefetch_not_ready), so no frame waits on the disk
+  /// for a block it does not fuse into.
+  bool wait_for_blocks = true;
   int resume_relocalize_frames = 90;
   bool resume_new_map_otherwise = false;
   /// Evaluation only: a tracking bias, xi = (omega rad, v m) applied to

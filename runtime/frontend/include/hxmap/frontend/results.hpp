@@ -57,6 +57,7 @@ struct MemoryCounters {
   uint64_t taken_back = 0;       ///< all blocks brought back (prefetch and fusion)
   uint64_t lost = 0;             ///< blocks the store failed to keep or give back
   uint64_t prefetch_capped = 0;  ///< blocks in view left out by the per-frame cap (not back yet)
+  uint64_t prefetch_not_ready = 0;  ///< ... left for a later frame: not read ahead yet (wait_for_blocks false)
   size_t resident_bytes_max = 0;
   uint64_t frames_over_budget = 0;  ///< frames that ended above the budget (after a loop closure's new map)
   double evict_ms_total = 0, evict_ms_max = 0;
