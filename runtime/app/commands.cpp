@@ -990,8 +990,8 @@ int synthCommand(const SynthOptions& o) {
   }
   p.trajectory = o.trajectory.empty() ? sc.trajectory : o.trajectory;
   if (p.trajectory != "orbit" && p.trajectory != "sweep" && p.trajectory != "inspect" && p.trajectory != "fast" &&
-      p.trajectory != "loop") {
-    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast, loop", p.trajectory);
+      p.trajectory != "loop" && p.trajectory != "street") {
+    spdlog::error("--trajectory: '{}' is not one of: orbit, sweep, inspect, fast, loop, street", p.trajectory);
     return 2;
   }
   if (!o.blackout.empty()) {
@@ -1013,8 +1013,8 @@ int synthCommand(const SynthOptions& o) {
     return 2;
   }
   const std::string scene_name = o.scene.empty() ? sc.scene : o.scene;
-  if (scene_name != "room" && scene_name != "quality") {
-    spdlog::error("--scene: '{}' is not one of: room, quality", scene_name);
+  if (scene_name != "room" && scene_name != "quality" && scene_name != "street") {
+    spdlog::error("--scene: '{}' is not one of: room, quality, street", scene_name);
     return 2;
   }
   p.scale = o.scale > 0 ? o.scale : sc.scale;
@@ -1022,9 +1022,10 @@ int synthCommand(const SynthOptions& o) {
     spdlog::error("--scale: {} is not within [0.05, 20]", p.scale);
     return 2;
   }
-  const drv::SyntheticScene scene =
-      (scene_name == "quality" ? drv::SyntheticScene::qualityRoom() : drv::SyntheticScene::room())
-          .scaled(static_cast<float>(p.scale));
+  const drv::SyntheticScene scene = (scene_name == "quality"  ? drv::SyntheticScene::qualityRoom()
+                                     : scene_name == "street" ? drv::SyntheticScene::street()
+                                                              : drv::SyntheticScene::room())
+                                        .scaled(static_cast<float>(p.scale));
   p.noise = sc.noise && !o.no_noise;
   p.noise_scale = sc.noise_scale;
   p.missing_blobs_per_frame = sc.missing_blobs_per_frame;

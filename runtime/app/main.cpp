@@ -70,13 +70,17 @@ int main(int argc, char** argv) {
   synth_cmd->add_option("--seed", synth.seed, "noise seed");
   synth_cmd->add_option("--fps", synth.fps,
                         "frame rate the trajectory is sampled at (default 30; 10: three times the motion per frame)");
-  synth_cmd->add_option("--trajectory", synth.trajectory, "orbit, sweep, inspect, fast (hand-held, jerky) or loop (10 s laps looking out at the walls)");
+  synth_cmd->add_option("--trajectory", synth.trajectory,
+                        "orbit, sweep, inspect, fast (hand-held, jerky), loop (10 s laps looking out at the walls) or "
+                        "street (end to end of the street scene and back)");
   synth_cmd->add_option("--blackout", synth.blackout,
                         "START_S:DURATION_S: no depth and black color for that long (the camera keeps moving)");
   synth_cmd->add_option("--drop-every", synth.drop_every,
                         "leave every N-th frame out of the lists (2: every other frame dropped)")
       ->check(CLI::Range(0, 1000));
-  synth_cmd->add_option("--scene", synth.scene, "room (default) or quality (known-bad regions for quality validation)");
+  synth_cmd->add_option(
+      "--scene", synth.scene,
+      "room (default), quality (known-bad regions for quality validation) or street (160 m, for long flights)");
   synth_cmd->add_option("--scale", synth.scale,
                         "scene and trajectory scaled by this (0.5: the quality room's thin structures as thin against "
                         "1 cm voxels as at full size against 2 cm)");

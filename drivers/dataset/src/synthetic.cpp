@@ -78,6 +78,97 @@ SyntheticScene SyntheticScene::qualityRoom() {
   return s;
 }
 
+SyntheticScene SyntheticScene::street() {
+  SyntheticScene s;
+  // Uniform in [lo, hi) from a fixed seed, the same with every standard
+  // library (the std distributions are not).
+  std::mt19937 rng(20261206u);
+  auto uniform = [&](float lo, float hi) {
+    return lo + (hi - lo) * static_cast<float>(rng() >> 8) * (1.0f / 16777216.0f);
+  };
+  auto add = [&](Kind kind, Vector3f a, Vector3f b, float r, alg::Color3 col, int tex) {
+    s.primitives_.push_back({kind, a, b, r, col, tex});
+  };
+  auto color = [&](int lo, int hi) {
+    return alg::Color3(static_cast<uint8_t>(uniform(lo, hi)), static_cast<uint8_t>(uniform(lo, hi)),
+                       static_cast<uint8_t>(uniform(lo, hi)));
+  };
+  // A pedestrian street 7 m wide: a Kinect-class sensor's noise at the
+  // 2-4 m the facades are seen from is 1-3 cm (at 5 m it would be 4 cm).
+  constexpr float kHalfLength = 80.0f, kFacade = 3.5f;
+  // Paving in 10 m tiles (a checker of 40 cm stones: planks along the
+  // street would look the same wherever along it the camera is) and a wall
+  // closing either end.
+  for (float x = -kHalfLength; x < kHalfLength; x += 10.0f) {
+    add(Kind::kBox, {x + 5.0f, 0, -0.1f}, {5.0f, kFacade + 2.0f, 0.1f}, 0, {150, 140, 130}, 1);
+  }
+  for (float side : {-1.0f, 1.0f}) {
+    add(Kind::kBox, {side * (kHalfLength + 0.5f), 0, 4.0f}, {0.5f, kFacade + 2.0f, 4.0f}, 0, color(150, 230), 1);
+  }
+  for (float side : {-1.0f, 1.0f}) {
+    // Buildings along the side: widths 8-16 m, an alley 2.5 m wide after
+    // about one in four, setbacks up to 0.6 m.
+    float x = -kHalfLength;
+    while (x < kHalfLength - 4.0f) {
+      const float width = std::min(uniform(8.0f, 16.0f), kHalfLength - x);
+      const float height = uniform(5.0f, 12.0f), setback = uniform(0.0f, 0.6f);
+      const float front = kFacade + setback, cx = x + width / 2;
+      add(Kind::kBox, {cx, side * (front + 1.5f), height / 2}, {width / 2, 1.5f, height / 2}, 0, color(120, 235), 1);
+      // Half columns 30-40 cm thick every 2.5-4 m: a street of planes
+      // alone, seen square on, shows no surface facing along it (box sides
+      // are edge on), and ICP could not tell where along it the camera is;
+      // round columns face every way. Then a door (its frame standing out
+      // 12 cm) and a ledge under the first floor's windows.
+      for (float px = x + 0.5f; px < x + width - 0.5f; px += uniform(2.5f, 4.0f)) {
+        add(Kind::kCapsule, {px, side * front, 0.0f}, {px, side * front, height}, uniform(0.15f, 0.2f), color(100, 220),
+            0);
+      }
+      const float door_x = uniform(x + 1.5f, x + width - 1.5f);
+      add(Kind::kBox, {door_x, side * (front - 0.06f), 1.1f}, {0.7f, 0.06f, 1.1f}, 0, color(40, 120), 0);
+      add(Kind::kBox, {cx, side * (front - 0.1f), 3.2f}, {width / 2 - 0.5f, 0.1f, 0.08f}, 0, color(180, 240), 0);
+      x += width + (uniform(0.0f, 1.0f) < 0.25f ? 2.5f : 0.0f);
+    }
+    // Along the facades every 3-7 m: a planter, a lamp post, a bush or a
+    // bin.
+    for (float xc = -kHalfLength + 3.0f; xc < kHalfLength - 3.0f; xc += uniform(3.0f, 7.0f)) {
+      const int kind = static_cast<int>(uniform(0.0f, 4.0f));
+      if (kind == 0) {
+        add(Kind::kBox, {xc, side * 2.95f, 0.3f}, {0.8f, 0.3f, 0.3f}, 0, color(30, 220), 0);
+        add(Kind::kSphere, {xc, side * 2.95f, 0.75f}, {0, 0, 0}, 0.3f, color(40, 140), 0);
+      } else if (kind == 1) {
+        add(Kind::kCapsule, {xc, side * 3.0f, 0.0f}, {xc, side * 3.0f, 4.0f}, 0.06f, {60, 70, 60}, 0);
+        add(Kind::kSphere, {xc, side * 3.0f, 4.1f}, {0, 0, 0}, 0.2f, {240, 230, 200}, 0);
+      } else if (kind == 2) {
+        add(Kind::kSphere, {xc, side * 2.95f, 0.3f}, {0, 0, 0}, uniform(0.3f, 0.45f), color(40, 140), 0);
+      } else {
+        add(Kind::kBox, {xc, side * 3.1f, 0.45f}, {0.25f, 0.25f, 0.45f}, 0, color(60, 200), 0);
+      }
+    }
+  }
+  return s;
+}
+
+SyntheticScene SyntheticScene::near(const Vector3f& center, float radius) const {
+  SyntheticScene out;
+  out.scale_ = scale_;
+  for (int k = 0; k < static_cast<int>(primitives_.size()); ++k) {
+    const Primitive& pr = primitives_[static_cast<size_t>(k)];
+    Vector3f c = pr.a;
+    float r = pr.radius;
+    if (pr.kind == Kind::kBox || pr.kind == Kind::kRoom) {
+      r = pr.b.norm();
+    } else if (pr.kind == Kind::kCapsule) {
+      c = 0.5f * (pr.a + pr.b);
+      r += 0.5f * (pr.b - pr.a).norm();
+    }
+    // A room is seen from inside: keep it wherever the camera is.
+    if (pr.kind != Kind::kRoom && (c - center).norm() > radius + r) continue;
+    out.primitives_.push_back(pr);
+    out.source_index_.push_back(source_index_.empty() ? k : source_index_[static_cast<size_t>(k)]);
+  }
+  return out;
+}
+
 SyntheticScene SyntheticScene::scaled(float s) const {
   SyntheticScene out = *this;
   for (Primitive& p : out.primitives_) {
@@ -283,7 +374,8 @@ alg::Color3 SyntheticScene::color(const Vector3f& p_world, const Vector3f& n, in
   const Primitive& pr = primitives_[primitive];
   const Vector3f p = p_world / scale_;
   Eigen::Vector3f albedo = pr.color.cast<float>() / 255.0f;
-  const float grain = valueNoise(p * 12.0f, 7u + static_cast<uint32_t>(primitive));
+  const int seed_index = source_index_.empty() ? primitive : source_index_[static_cast<size_t>(primitive)];
+  const float grain = valueNoise(p * 12.0f, 7u + static_cast<uint32_t>(seed_index));
   const float fine = valueNoise(p * 60.0f, 13u);
   if (pr.texture == 1) {  // walls: large checker, posters of noise
     const int cx = static_cast<int>(std::floor(p.x() * 2.5f)), cy = static_cast<int>(std::floor(p.y() * 2.5f)),
@@ -446,6 +538,21 @@ Eigen::Isometry3d syntheticPose(const SyntheticParams& params, double t) {
     const Eigen::Vector3d out(std::cos(phi), std::sin(phi), 0.0);
     eye = Eigen::Vector3d(0.0, 0.0, 1.2 + 0.1 * std::sin(0.9 * t)) + 0.3 * out;
     target = eye + 1.5 * out + Eigen::Vector3d(0.0, 0.0, -0.85 + 0.15 * std::sin(0.5 * t));
+  } else if (params.trajectory == "street") {
+    // End to end of SyntheticScene::street (x from -72 to 72 m) and back,
+    // 144 s each way (1 m/s on average, 1.6 m/s in the middle, slowing to a
+    // stop at either end), weaving 0.8 m either side of the middle. The
+    // heading turns through half a circle over each way, fastest at the
+    // ends where the camera turns around, and swings 50 degrees to either
+    // side every 12 s to look at the facades; the gaze rises and falls
+    // between the paving and the upper floors.
+    constexpr double kWay = 144.0;
+    const double u = t / kWay;
+    const double x = -72.0 + 144.0 * (0.5 - 0.5 * std::cos(M_PI * u));
+    eye = {x, 0.8 * std::sin(0.25 * t), 1.4 + 0.15 * std::sin(0.7 * t)};
+    const double heading =
+        M_PI * (u - 0.5 + std::sin(2.0 * M_PI * u) / (2.0 * M_PI)) + 0.87 * std::sin(2.0 * M_PI * t / 12.0);
+    target = eye + Eigen::Vector3d(4.0 * std::cos(heading), 4.0 * std::sin(heading), -0.4 + 0.8 * std::sin(0.23 * t));
   } else if (params.trajectory == "fast") {
     // Around the table like the orbit, in surges: the angle's rate swings
     // between -0.24 and 0.84 rad/s (about 1.1 m/s along the circle and as
@@ -559,9 +666,19 @@ void renderColorWithEffects(const SyntheticScene& scene, const alg::PinholeCamer
 
 }  // namespace
 
-RenderedFrame renderFrame(const SyntheticScene& scene, const alg::PinholeCamera& cam,
+RenderedFrame renderFrame(const SyntheticScene& full_scene, const alg::PinholeCamera& cam,
                           const Eigen::Isometry3d& T_world_cam, const SyntheticParams& params, int frame_index,
                           const ParallelFor& parallel) {
+  // A large scene is cut to what the sensor can see from here (its range,
+  // and a meter for the color camera's motion within the frame; color
+  // beyond that is black, as the sky is); without the sensor model depth is
+  // not cut at its range, so nothing is left out.
+  constexpr size_t kCullAbove = 64;
+  const bool cull = params.noise && full_scene.primitives().size() > kCullAbove;
+  const SyntheticScene near_scene =
+      cull ? full_scene.near(T_world_cam.translation().cast<float>(), static_cast<float>(params.max_depth_m) + 1.0f)
+           : SyntheticScene{};
+  const SyntheticScene& scene = cull ? near_scene : full_scene;
   RenderedFrame out;
   out.rgb.create(cam.height, cam.width, CV_8UC3);
   out.depth_true.create(cam.height, cam.width, CV_32F);

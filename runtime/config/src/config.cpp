@@ -277,8 +277,8 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("frames", c.synthetic.frames, 1, 100000);
   v.number("fps", c.synthetic.fps, 1, 1000);
   v.integer("seed", c.synthetic.seed, 0, 1 << 30);
-  v.choice("scene", c.synthetic.scene, {"room", "quality"});
-  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast", "loop"});
+  v.choice("scene", c.synthetic.scene, {"room", "quality", "street"});
+  v.choice("trajectory", c.synthetic.trajectory, {"orbit", "sweep", "inspect", "fast", "loop", "street"});
   v.number("scale", c.synthetic.scale, 0.05, 20);
   v.boolean("noise", c.synthetic.noise);
   v.number("noise_scale", c.synthetic.noise_scale, 0, 100);

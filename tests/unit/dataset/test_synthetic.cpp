@@ -119,6 +119,52 @@ TEST(Synthetic, TheHandHeldColorCameraIsExposedLaterRowByRowAndBlurred) {
   EXPECT_LT(gradientEnergy(b.rgb), 0.9 * gradientEnergy(ideal.rgb));
 }
 
+TEST(Synthetic, TheStreetIsRenderedFromTheNearbyPrimitivesAsFromAllAndItsWalkStaysInTheStreet) {
+  const SyntheticScene street = SyntheticScene::street();
+  ASSERT_GT(street.primitives().size(), 150u);
+  SyntheticParams p;
+  p.trajectory = "street";
+  p.frames = 10000;
+  const Trajectory walk = syntheticTrajectory(p);
+  double path_m = 0;
+  for (size_t i = 0; i < walk.size(); ++i) {
+    const Eigen::Vector3d eye = walk[i].T_world_cam.translation();
+    ASSERT_LT(std::abs(eye.y()), 1.0) << "frame " << i << ": in the middle of the street";
+    ASSERT_GT(street.sdf(eye.cast<float>()), 0.4f) << "frame " << i << ": in free space";
+    if (i > 0) path_m += (eye - walk[i - 1].T_world_cam.translation()).norm();
+  }
+  EXPECT_GT(path_m, 280.0) << "10,000 frames: end to end, back, and a fifth of the way again";
+  const TrajectorySpeeds speeds = trajectorySpeeds(walk);
+  EXPECT_LT(speeds.max_linear_mps, 2.0);
+  EXPECT_GT(speeds.max_angular_dps, 20.0);
+  // With the sensor model each frame is rendered from the primitives within
+  // its range (near()): the true depth and the color it shows there are
+  // those of the whole scene rendered without culling.
+  SyntheticParams exact = p;
+  exact.noise = false;
+  for (int i : {0, 2500, 4321, 7200}) {
+    const Eigen::Isometry3d& T = walk[static_cast<size_t>(i)].T_world_cam;
+    const SyntheticScene near = street.near(T.translation().cast<float>(), 7.0f);
+    EXPECT_LT(near.primitives().size(), street.primitives().size() / 3) << "frame " << i;
+    const RenderedFrame culled = renderFrame(street, kCam, T, p, i);
+    const RenderedFrame all = renderFrame(street, kCam, T, exact, i);
+    int compared = 0, differ = 0;
+    for (int v = 0; v < kCam.height; ++v) {
+      for (int u = 0; u < kCam.width; ++u) {
+        const float z = all.depth_true.at<float>(v, u);
+        if (z <= 0 || z > p.max_depth_m) continue;
+        ++compared;
+        const cv::Vec3b a = all.rgb.at<cv::Vec3b>(v, u), b = culled.rgb.at<cv::Vec3b>(v, u);
+        const bool same_color = std::abs(a[0] - b[0]) <= 10 && std::abs(a[1] - b[1]) <= 10 &&
+                                std::abs(a[2] - b[2]) <= 10;  // color noise of sigma 2
+        differ += culled.depth_true.at<float>(v, u) != z || !same_color;
+      }
+    }
+    EXPECT_GT(compared, kCam.width * kCam.height / 8) << "frame " << i << " sees the street within range";
+    EXPECT_EQ(differ, 0) << "frame " << i;
+  }
+}
+
 TEST(Synthetic, GroundTruthMeshMatchesTheSdf) {
   const SyntheticScene scene = SyntheticScene::room();
   const alg::TriangleMesh mesh = scene.mesh();

@@ -32,7 +32,10 @@ struct SyntheticParams {
   /// SyntheticScene::qualityRoom) or "fast" (hand-held around the table:
   /// surges to about 1.2 m/s and 50 deg/s with a hand's shake on top) or
   /// "loop" (10 s laps in the middle of the room looking out at the walls:
-  /// the start comes back into view once per lap).
+  /// the start comes back into view once per lap) or "street" (made for
+  /// SyntheticScene::street: walks the street end to end and back, 144 m
+  /// each way at 1 m/s on average, weaving across it and turning to look at
+  /// either side).
   std::string trajectory = "orbit";
   /// Frames from blackout_start_s for blackout_s seconds have no valid
   /// depth and black color (a covered lens, a sensor restart); the ground
@@ -93,6 +96,18 @@ class SyntheticScene {
   /// its depth lands in), and a shelf whose top is only seen at a grazing
   /// angle during one rise of the "inspect" trajectory.
   static SyntheticScene qualityRoom();
+  /// A pedestrian street 160 m long (x from -80 to 80, 7 m between the
+  /// facades at y = +-3.5, z up, ground at z = 0) closed by a wall at either
+  /// end: buildings 8-16 m wide and 5-12 m high with setbacks, alleys,
+  /// half columns, doors and ledges, and planters, lamp posts, bushes and bins
+  /// along both facades, all from a fixed seed. A scene for long flights
+  /// under a memory budget.
+  static SyntheticScene street();
+  /// The primitives that can be hit within `radius` of `center` (whose
+  /// bounding spheres reach into it), as a scene of their own that renders
+  /// them exactly as this one does: what a camera there sees up to its
+  /// maximum range, at the cost of a few primitives instead of all.
+  SyntheticScene near(const Eigen::Vector3f& center, float radius) const;
   /// This scene scaled by `s` about the world origin: every length, and the
   /// texture patterns with it (0.5 and 1 cm voxels see the quality room's
   /// structures as thin as 2 cm voxels see them at full size; pair with
@@ -118,6 +133,9 @@ class SyntheticScene {
 
  private:
   std::vector<Primitive> primitives_;
+  /// The index each primitive has in the scene it was taken from (near());
+  /// textures are seeded by it. Empty: the primitives' own indices.
+  std::vector<int> source_index_;
   float scale_ = 1.0f;  ///< texture coordinates are divided by this
 };
 

@@ -46,7 +46,7 @@ struct SyntheticConfig {
   int frames = 150;
   double fps = 30.0;  ///< frame rate the trajectory is sampled at (lower: more motion per frame)
   int seed = 1;
-  std::string scene = "room";         ///< room | quality
+  std::string scene = "room";        ///< room | quality | street
   std::string trajectory = "orbit";  ///< orbit | sweep | inspect | fast | loop
   double scale = 1.0;                ///< scene and trajectory scaled about the origin
   bool noise = true;
