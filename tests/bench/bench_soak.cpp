@@ -13,6 +13,7 @@
 // sees the other's memory.
 //
 //   bench_soak [FRAMES=10000] [BUDGET_MIB=256] [VOXEL_M=0.02] [WIDTH=320] [SCENE=street] [POSES=given]
+//              [budget-only]     (the flight under the budget alone; compare its map hash by hand)
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -161,10 +162,14 @@ FlightResult fly(const Flight& flight, double budget_mib) {
       window.clear();
     }
   }
-  std::printf("lost frames %zu; voxels column: MiB resident\n", lost);
+  std::printf("lost frames %zu; frames that ended over the budget %llu; voxels column: MiB resident\n", lost,
+              static_cast<unsigned long long>(fe.memoryCounters().frames_over_budget));
   fe.restoreEvicted();
   result.blocks = fe.map().blockCount();
   result.map_hash = mapHash(fe.map());
+  std::printf("every block back: %llu blocks, map hash %016llx\n", static_cast<unsigned long long>(result.blocks),
+              static_cast<unsigned long long>(result.map_hash));
+  std::fflush(stdout);
   return result;
 }
 
@@ -231,14 +236,16 @@ int main(int argc, char** argv) {
   if (argc > 4) f.width = std::atoi(argv[4]);
   if (argc > 5) f.scene = argv[5];
   const std::string poses = argc > 6 ? argv[6] : "given";
+  const bool budget_only = argc > 7 && std::string(argv[7]) == "budget-only";
   f.given_poses = poses == "given";
   if (f.frames < 1 || !(f.voxel_m > 0) || f.width < 64 || (f.scene != "street" && !(std::atof(f.scene.c_str()) > 0)) ||
       (poses != "given" && poses != "tracked")) {
     std::fprintf(stderr,
                  "usage: bench_soak [FRAMES=10000] [BUDGET_MIB=256] [VOXEL_M=0.02] [WIDTH=320] "
-                 "[SCENE=street|ROOM_SCALE] [POSES=given|tracked]\n");
+                 "[SCENE=street|ROOM_SCALE] [POSES=given|tracked] [budget-only]\n");
     return 2;
   }
+  if (budget_only) return f.budget_mib > 0 ? (flyApart(f, f.budget_mib), 0) : 2;
   const FlightResult unbounded = flyApart(f, 0);
   if (f.budget_mib <= 0) return 0;
   const FlightResult bounded = flyApart(f, f.budget_mib);

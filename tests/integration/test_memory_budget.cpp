@@ -153,19 +153,31 @@ TEST(MemoryBudget, ARunUnderABudgetStaysWithinItAndEndsWithTheMapOfARunWithout) 
   Frontend free(cam, params);
   params.tsdf.max_resident_mib = 6.0;
   Frontend budgeted(cam, params);
+  // One block a frame at most, unless the frame would end over the budget:
+  // the budget holds all the same.
+  params.max_evictions_per_frame = 1;
+  Frontend tight(cam, params);
   auto store = drv::BlockStore::create(::testing::TempDir());
   ASSERT_TRUE(store) << store.message();
   budgeted.setBlockBacking(store->get());
+  auto tight_store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(tight_store) << tight_store.message();
+  tight.setBlockBacking(tight_store->get());
   const size_t budget = 6 << 20;
-  size_t most = 0;
+  size_t most = 0, most_tight = 0;
   for (int i = 0; i < sp.frames; ++i) {
     const Eigen::Isometry3d& T = truth[static_cast<size_t>(i)].T_world_cam;
     RgbdFrame f = test::syntheticFrame(scene, cam, T, true, i);
     f.stamp_ns = truth[static_cast<size_t>(i)].stamp_ns;
     free.process(f, &T);
     budgeted.process(f, &T);
+    tight.process(f, &T);
     most = std::max(most, budgeted.map().memory().bytes);
+    most_tight = std::max(most_tight, tight.map().memory().bytes);
   }
+  EXPECT_LE(most_tight, budget) << "one block a frame, and what the budget needs";
+  EXPECT_EQ(tight.memoryCounters().frames_over_budget, 0u);
+  tight.restoreEvicted();
   const MemoryCounters m = budgeted.memoryCounters();
   std::printf("budget 6 MiB: free run %.1f MiB; resident at most %.2f MiB, %llu moved out, %llu back\n",
               static_cast<double>(free.map().memory().bytes) / (1 << 20), static_cast<double>(most) / (1 << 20),
@@ -179,6 +191,7 @@ TEST(MemoryBudget, ARunUnderABudgetStaysWithinItAndEndsWithTheMapOfARunWithout) 
   ASSERT_EQ(budgeted.map().blockCount(), free.map().blockCount());
   EXPECT_EQ(sameBlocks(free.map(), budgeted.map()), free.map().blockCount())
       << "blocks moved out and back: the same map, bit for bit";
+  EXPECT_EQ(sameBlocks(free.map(), tight.map()), free.map().blockCount());
 }
 
 }  // namespace

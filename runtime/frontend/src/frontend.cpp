@@ -170,18 +170,22 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
   memory_counters_.resident_bytes_max = std::max(memory_counters_.resident_bytes_max, resident);
   countTakenBack();  // fusion's too
   // DESIGN: from 90 % of the budget, down to 80 %, at most
-  // max_evictions_per_frame blocks a frame (a copy into the store's queue
-  // each, a few microseconds; the store compresses and writes them on its
-  // own thread; 50 us each when this thread did that): a frame maps
-  // far fewer new blocks than that, so the budget holds without a long
-  // frame. Moving out all that was needed at once cost 33 ms in one frame
-  // after a loop closure replaced the map (a real-time run missed 26
-  // deadlines); now the budget is exceeded for a few frames then, counted.
+  // max_evictions_per_frame blocks a frame, and always as many as it takes
+  // to end the frame within the budget. A block moved out costs the
+  // frontend a copy into the store's queue (about 5 us; the store
+  // compresses and writes it on its own thread). The cap alone (96 blocks)
+  // let a 1 cm map outgrow a 256 MiB budget by 44 % where the camera saw
+  // more new surface a frame than that. After a loop closure replaced the
+  // map, the floor moves thousands of blocks in one frame: a few ms at
+  // this cost (33 ms when this thread compressed them).
   if (resident <= budget * 9 / 10) return;
   const auto t0 = std::chrono::steady_clock::now();
-  const size_t over = resident - budget * 8 / 10;
-  size_t count = std::min((over + sizeof(alg::VoxelBlock) - 1) / sizeof(alg::VoxelBlock), map_.blockCount());
-  count = std::min(count, static_cast<size_t>(std::max(1, params_.max_evictions_per_frame)));
+  const size_t block_bytes = sizeof(alg::VoxelBlock);
+  const size_t to_80 = (resident - budget * 8 / 10 + block_bytes - 1) / block_bytes;
+  const size_t to_100 =
+      resident > budget ? (resident - budget + block_bytes - 1) / block_bytes + alg::TsdfMap::chunkBlocks() : 0;
+  size_t count = std::min(to_80, std::max(to_100, static_cast<size_t>(std::max(1, params_.max_evictions_per_frame))));
+  count = std::min(count, map_.blockCount());
   if (count == 0) return;
   const Eigen::Isometry3f T_cam_world = T_world_cam.inverse().cast<float>();
   const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);

@@ -213,6 +213,9 @@ class TsdfMap {
   bool sampleColor(const Eigen::Vector3f& p_world, Eigen::Vector3f& rgb) const;
 
   MapMemory memory() const;
+  /// Blocks are stored, and counted in memory(), in chunks of this many:
+  /// removing blocks frees memory a whole chunk at a time.
+  static constexpr size_t chunkBlocks() { return kChunkBlocks; }
   void clear();
   /// Makes this map what copyBlocks(map, box_world) returns (same
   /// parameters), in this map's block memory: no allocation while it has

@@ -66,7 +66,8 @@ struct FrontendParams {
   /// to stop (resumeFailed).
   /// The memory budget (tsdf.max_resident_mib) needs a backing
   /// (setBlockBacking): from 90 % of the budget the blocks farthest from the
-  /// camera leave memory, down to 80 % of it (max_evictions_per_frame a frame); blocks held there come back ahead of
+  /// camera leave memory, down to 80 % of it (max_evictions_per_frame a frame,
+  /// or more when that would leave the frame over the budget); blocks held there come back ahead of
   /// the camera (those in the predicted view, nearest first, as many as the
   /// budget has room for) or when fusion reaches them.
   int max_evictions_per_frame = 96;  ///< blocks moved out per frame at most
