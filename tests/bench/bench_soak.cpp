@@ -127,8 +127,8 @@ FlightResult fly(const Flight& flight, double budget_mib) {
       "\n%s: %d frames, %dx%d, %.0f cm voxels, %s, %s poses\n",
       budget_mib > 0 ? ("budget " + std::to_string(static_cast<int>(budget_mib)) + " MiB").c_str() : "no budget",
       frames, width, height, 100 * voxel_m, what.c_str(), flight.given_poses ? "true" : "tracked");
-  std::printf("%7s %10s %8s %9s %9s %9s %9s %8s %8s %6s\n", "frames", "path m", "voxels", "RSS MiB", "out blks",
-              "moved out", "back", "disk MiB", "p50 ms", "p99 ms");
+  std::printf("%7s %10s %8s %9s %9s %9s %9s %8s %8s %8s %6s\n", "frames", "path m", "voxels", "RSS MiB", "out blks",
+              "moved out", "back", "disk MiB", "held MiB", "p50 ms", "p99 ms");
   FlightResult result;
   std::vector<double> window;
   double path_m = 0;
@@ -154,16 +154,23 @@ FlightResult fly(const Flight& flight, double budget_mib) {
     if ((i + 1) % 1000 == 0 || i + 1 == frames) {
       const rt::MemoryCounters m = fe.memoryCounters();
       const drv::BlockStoreStats s = store ? store->stats() : drv::BlockStoreStats{};
-      std::printf("%7d %10.0f %8.1f %9.1f %9zu %9llu %9llu %8.1f %8.1f %6.1f\n", i + 1, path_m,
+      // What the budget's bookkeeping holds in memory: the store's queue,
+      // read-ahead cache and index, and the map's set of blocks out.
+      const double held = static_cast<double>(s.queued_bytes + s.read_ahead_bytes + s.index_bytes +
+                                              fe.map().blocksElsewhere().memoryBytes()) /
+                          (1 << 20);
+      std::printf("%7d %10.0f %8.1f %9.1f %9zu %9llu %9llu %8.1f %8.1f %8.1f %6.1f\n", i + 1, path_m,
                   static_cast<double>(fe.map().memory().bytes) / (1 << 20), rssMib(), fe.map().blocksElsewhere().size(),
                   static_cast<unsigned long long>(m.evicted), static_cast<unsigned long long>(m.taken_back),
-                  static_cast<double>(s.file_bytes) / (1 << 20), bench::median(window), percentile(window, 0.99));
+                  static_cast<double>(s.file_bytes) / (1 << 20), held, bench::median(window), percentile(window, 0.99));
       std::fflush(stdout);
       window.clear();
     }
   }
-  std::printf("lost frames %zu; frames that ended over the budget %llu; voxels column: MiB resident\n", lost,
-              static_cast<unsigned long long>(fe.memoryCounters().frames_over_budget));
+  std::printf(
+      "lost frames %zu; frames that ended over the budget %llu; voxels: MiB resident; held: the store's queue, "
+      "read-ahead and index and the map's set of blocks out\n",
+      lost, static_cast<unsigned long long>(fe.memoryCounters().frames_over_budget));
   fe.restoreEvicted();
   result.blocks = fe.map().blockCount();
   result.map_hash = mapHash(fe.map());

@@ -149,7 +149,8 @@ struct ReceivedMap {
   std::pair<size_t, double> totals() const {
     size_t triangles = 0;
     double area = 0;
-    for (const auto& [key, m] : parts) {
+    for (const auto& entry : parts) {
+      const auto& m = entry.second;  // clang 14 lets no lambda capture a structured binding
       if (m.part >= m.parts) continue;
       triangles += m.triangles.size() / 3;
       for (size_t t = 0; t < m.triangles.size(); t += 3) {

@@ -8,6 +8,7 @@
 
 #include "hxmap/frontend/frontend.hpp"
 #include "hxmap/mapfile/block_store.hpp"
+#include "hxmap/tsdf/patch.hpp"
 #include "synthetic_fixture.hpp"
 
 namespace hxmap::rt {
@@ -63,6 +64,76 @@ TEST(MemoryBudget, BlocksMovedOutAndBroughtBackLeaveTheTsdfAndItsStatisticsIdent
   EXPECT_EQ(map.blocksTakenBack(), out.size());
   EXPECT_EQ(sameBlocks(map, before), 100u);
   EXPECT_EQ((*store)->stats().blocks, 0u);
+}
+
+TEST(MemoryBudget, FusionDeIntegrationAndWriteBackIntoBlocksMovedOutMeetTheirVoxels) {
+  // Pose feedback re-integrates keyframes (de-integrate, fuse again) and a
+  // refinement job's write-back lands in blocks the budget may have moved
+  // out since the job's snapshot: each must find the voxels it left, not
+  // empty blocks. Both maps take the same steps; one has every block moved
+  // out before each.
+  const auto scene = drv::SyntheticScene::room();
+  const alg::PinholeCamera cam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+  drv::SyntheticParams sp;
+  const auto traj = drv::syntheticTrajectory(sp);
+  alg::TsdfParams p;
+  p.voxel_size_m = 0.02;
+  p.truncation_m = 0.08;
+  alg::TsdfMap kept(p), moved(p);
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  moved.setBacking(store->get());
+  auto observe = [&](int i, const Eigen::Isometry3d& T) {
+    const RgbdFrame f = test::syntheticFrame(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, true, i);
+    const auto pre = alg::preprocessFrame({0, 0, f.rgb, f.depth}, cam, alg::PreprocessParams{});
+    return alg::DepthObservation{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam, T.cast<float>()};
+  };
+  auto allOut = [&] {
+    std::vector<int32_t> all(moved.blockCount());
+    for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int32_t>(i);
+    EXPECT_EQ(moved.removeBlocks(all), 0u);
+    EXPECT_EQ(moved.blockCount(), 0u);
+  };
+  const auto a = observe(0, traj[0].T_world_cam), b = observe(12, traj[12].T_world_cam);
+  for (alg::TsdfMap* m : {&kept, &moved}) {
+    alg::integrate(*m, a);
+    alg::integrate(*m, b);
+  }
+  const size_t blocks = kept.blockCount();
+  // Re-integration of b at a corrected pose (feedback).
+  Eigen::Isometry3d corrected = traj[12].T_world_cam;
+  corrected.translation() += Eigen::Vector3d(0.01, -0.005, 0.0);
+  const auto b_corrected = observe(12, corrected);
+  allOut();
+  alg::deintegrate(moved, b);
+  alg::deintegrate(kept, b);
+  allOut();
+  alg::integrate(moved, b_corrected);
+  alg::integrate(kept, b_corrected);
+  // A write-back (refinement) over voxels of the surface.
+  alg::TsdfPatch patch;
+  for (size_t i = 0; i < kept.blockCount(); i += 7) {
+    const alg::BlockKey k = kept.key(i);
+    for (int v = 0; v < 8; ++v) {
+      alg::TsdfPatch::Entry e;
+      e.voxel = k * 8 + Eigen::Vector3i(v, (v * 3) & 7, (v * 5) & 7);
+      e.sdf_m = 0.004f * static_cast<float>(v - 4);
+      e.weight = 2.0f;
+      e.has_color = v % 2 == 0;
+      e.rgb[0] = 200;
+      patch.entries.push_back(e);
+    }
+  }
+  allOut();
+  const auto moved_stats = alg::applyPatch(moved, patch);
+  const auto kept_stats = alg::applyPatch(kept, patch);
+  EXPECT_EQ(moved_stats.applied, kept_stats.applied);
+  // Every block back: the two maps are the same, voxel for voxel.
+  for (const Eigen::Vector3i& k : moved.blocksElsewhere().keys()) moved.findOrAllocate(k);
+  EXPECT_EQ(moved.blocksLostInBacking(), 0u);
+  ASSERT_EQ(moved.blockCount(), kept.blockCount());
+  EXPECT_GE(kept.blockCount(), blocks);
+  EXPECT_EQ(sameBlocks(moved, kept), kept.blockCount());
 }
 
 TEST(MemoryBudget, BlocksTakenBackWhileTheWriterIsAtWorkOrReadAheadAreTheBlocksPutAndAClearDropsAll) {

@@ -44,7 +44,7 @@ std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks) {
   regions.reserve(map.blockCount());
   for (size_t b = 0; b < map.blockCount(); ++b) regions.push_back(regionOf(map.key(b), region_blocks));
   // Blocks out of memory (a memory budget) are still part of the map.
-  for (const uint64_t k : map.blocksElsewhere()) regions.push_back(regionOf(unpackBlockKey(k), region_blocks));
+  map.blocksElsewhere().forEach([&](const BlockKey& k) { regions.push_back(regionOf(k, region_blocks)); });
   std::sort(regions.begin(), regions.end(), keyLess);
   regions.erase(std::unique(regions.begin(), regions.end()), regions.end());
   return regions;

@@ -63,9 +63,7 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   if (static_cast<size_t>(index) < stale_end_) block(static_cast<size_t>(index)) = VoxelBlock{};
   block_revisions_.push_back(0);
   if (!elsewhere_.empty()) {
-    const auto it = elsewhere_.find(pack(key));
-    if (it != elsewhere_.end()) {
-      elsewhere_.erase(it);
+    if (elsewhere_.erase(key)) {
       if (backing_ && backing_->take(key, block(static_cast<size_t>(index)))) {
         ++taken_back_;
       } else {
@@ -261,7 +259,7 @@ size_t TsdfMap::removeBlocks(std::vector<int32_t> block_indices) {
     if (b < 0 || static_cast<size_t>(b) >= keys_.size()) continue;
     const size_t i = static_cast<size_t>(b);
     if (backing_ && backing_->put(keys_[i], block(i))) {
-      elsewhere_.insert(pack(keys_[i]));
+      elsewhere_.insert(keys_[i]);
     } else {
       ++refused;
       ++lost_in_backing_;

@@ -104,9 +104,9 @@ bool BlockStore::put(const alg::BlockKey& key, const alg::VoxelBlock& block) {
     std::unique_lock lock(m_);
     written_.wait(lock, [&] { return queued_bytes_ < kMaxQueuedBytes; });
     // A key put again replaces what the store held for it.
-    if (const auto old = index_.find(k); old != index_.end()) {
-      live_bytes_ -= old->second.stored;
-      index_.erase(old);
+    if (const auto old = index_.find(k)) {
+      live_bytes_ -= old->stored;
+      index_.erase(k);
     }
     if (queued_.erase(k) > 0) queued_bytes_ -= kBlockRawBytes;
     refused_.erase(k);
@@ -148,10 +148,10 @@ bool BlockStore::take(const alg::BlockKey& key, alg::VoxelBlock& out) {
     refused_.erase(it);
     return true;
   }
-  const auto it = index_.find(k);
-  if (it == index_.end()) return false;
-  const Record r = it->second;
-  index_.erase(it);
+  const auto found = index_.find(k);
+  if (!found) return false;
+  const Record r = *found;
+  index_.erase(k);
   live_bytes_ -= r.stored;
   if (const auto ahead = read_ahead_.find(k); ahead != read_ahead_.end()) {
     giveBack(ahead->second);
@@ -209,7 +209,7 @@ void BlockStore::prefetch(const std::vector<alg::BlockKey>& keys) {
     read_order_.clear();  // the previous hint's view is behind the camera now
     for (const alg::BlockKey& key : keys) {
       const uint64_t k = alg::packBlockKey(key);
-      if (index_.count(k) > 0 && read_ahead_.count(k) == 0) read_order_.push_back(k);
+      if (index_.contains(k) && read_ahead_.count(k) == 0) read_order_.push_back(k);
     }
     if (read_order_.empty()) return;
   }
@@ -219,15 +219,15 @@ void BlockStore::prefetch(const std::vector<alg::BlockKey>& keys) {
 bool BlockStore::ready(const alg::BlockKey& key) const {
   const uint64_t k = alg::packBlockKey(key);
   std::lock_guard lock(m_);
-  return index_.count(k) == 0 || read_ahead_.count(k) > 0;
+  return !index_.contains(k) || read_ahead_.count(k) > 0;
 }
 
 void BlockStore::readAhead(std::unique_lock<std::mutex>& lock) {
   const uint64_t k = read_order_.front();
   read_order_.pop_front();
-  const auto it = index_.find(k);
-  if (it == index_.end() || read_ahead_.count(k) > 0) return;
-  const Record r = it->second;
+  const auto found = index_.find(k);
+  if (!found || read_ahead_.count(k) > 0) return;
+  const Record r = *found;
   const int fd = fd_;  // only this thread replaces it (compaction)
   const uint64_t epoch = epoch_;
   reading_ = true;
@@ -238,7 +238,7 @@ void BlockStore::readAhead(std::unique_lock<std::mutex>& lock) {
   lock.lock();
   reading_ = false;
   const auto now = index_.find(k);
-  if (!ok || epoch != epoch_ || now == index_.end() || now->second.offset != r.offset) return;  // taken meanwhile
+  if (!ok || epoch != epoch_ || !now || now->offset != r.offset) return;  // taken meanwhile
   read_ahead_.emplace(k, std::move(q));
   read_ahead_bytes_ += kBlockRawBytes;
   read_ahead_age_.push_back(k);
@@ -313,7 +313,7 @@ void BlockStore::writeInFlight(std::unique_lock<std::mutex>& lock) {
     refused_[in_flight_key_] = std::move(in_flight_);
     return;
   }
-  index_[in_flight_key_] = Record{offset, static_cast<uint32_t>(stored), crc, in_flight_.seen_through};
+  index_.set(in_flight_key_, Record{offset, static_cast<uint32_t>(stored), crc, in_flight_.seen_through});
   live_bytes_ += stored;
   stats_.bytes_written += stored;
   compactIfMostlyDead(lock);
@@ -327,7 +327,9 @@ void BlockStore::compactIfMostlyDead(std::unique_lock<std::mutex>& lock) {
   // writing the live third, on the writer thread: take() reads the old
   // file meanwhile, and only this thread writes).
   if (end_ < kCompactAboveBytes || live_bytes_ * 3 > end_) return;
-  const std::vector<std::pair<uint64_t, Record>> live(index_.begin(), index_.end());
+  std::vector<std::pair<uint64_t, Record>> live;
+  live.reserve(index_.size());
+  index_.forEach([&](uint64_t k, const Record& r) { live.emplace_back(k, r); });
   const int old_fd = fd_;
   const uint64_t epoch = epoch_;
   lock.unlock();
@@ -354,10 +356,7 @@ void BlockStore::compactIfMostlyDead(std::unique_lock<std::mutex>& lock) {
   }
   // Records taken back meanwhile are gone from the index; their copies
   // are dead bytes in the new file.
-  for (size_t i = 0; i < live.size(); ++i) {
-    const auto it = index_.find(live[i].first);
-    if (it != index_.end() && it->second.offset == live[i].second.offset) it->second.offset = offsets[i];
-  }
+  for (size_t i = 0; i < live.size(); ++i) index_.moveIfAt(live[i].first, live[i].second.offset, offsets[i]);
   ::close(fd_);
   fd_ = fd;
   stats_.bytes_written += end;
@@ -373,6 +372,9 @@ BlockStoreStats BlockStore::stats() const {
   s.blocks = index_.size() + refused_.size() + s.queued;
   s.file_bytes = end_;
   s.live_bytes = live_bytes_;
+  s.queued_bytes = queued_bytes_ + in_flight * kBlockRawBytes;
+  s.read_ahead_bytes = read_ahead_bytes_;
+  s.index_bytes = index_.memoryBytes();
   return s;
 }
 

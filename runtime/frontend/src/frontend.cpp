@@ -127,11 +127,21 @@ void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
   const Eigen::Isometry3f T_cam_world = T_world_predicted.inverse().cast<float>();
   const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);
   const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
+  // Regions of blocks out of view are skipped whole: the cost follows the
+  // view, not the length of the path.
+  const float side = alg::BlockKeySet::kRegionSide * map_.blockSize();
+  const float region_radius = 0.5f * side * std::sqrt(3.0f);
   std::vector<std::pair<float, uint64_t>> wanted;  // depth, packed key
-  for (const uint64_t k : map_.blocksElsewhere()) {
-    const Eigen::Vector3f c = blockCenter(T_cam_world, alg::unpackBlockKey(k), map_.blockSize());
-    if (blockInView(c, radius, camera_, max_depth)) wanted.emplace_back(c.z(), k);
-  }
+  map_.blocksElsewhere().forEachIn(
+      [&](const alg::BlockKey& lo) {
+        const Eigen::Vector3f c =
+            T_cam_world * (lo.cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(0.5f * side));
+        return blockInView(c, region_radius, camera_, max_depth);
+      },
+      [&](const alg::BlockKey& k) {
+        const Eigen::Vector3f c = blockCenter(T_cam_world, k, map_.blockSize());
+        if (blockInView(c, radius, camera_, max_depth)) wanted.emplace_back(c.z(), alg::packBlockKey(k));
+      });
   // Nearest first, as many as fit in the budget (a view that holds more
   // than the budget gets its nearest part) and the per-frame cap.
   const size_t budget = budgetBytes(), resident = map_.memory().bytes;
@@ -210,7 +220,10 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
 }
 
 void Frontend::restoreEvicted() {
-  bringBack(std::vector<uint64_t>(map_.blocksElsewhere().begin(), map_.blocksElsewhere().end()));
+  std::vector<uint64_t> keys;
+  keys.reserve(map_.blocksElsewhere().size());
+  map_.blocksElsewhere().forEach([&](const alg::BlockKey& k) { keys.push_back(alg::packBlockKey(k)); });
+  bringBack(keys);
 }
 
 void Frontend::checkResume(const FrameResult& r) {

@@ -11,12 +11,12 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
-#include <unordered_set>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "hxmap/tsdf/block_key_set.hpp"
 #include "hxmap/tsdf/params.hpp"
 
 namespace hxmap::alg {
@@ -175,8 +175,8 @@ class TsdfMap {
   /// keys do not. Returns how many the backing refused (lost).
   size_t removeBlocks(std::vector<int32_t> block_indices);
   /// Blocks held by the backing (part of the map, not in memory).
-  bool heldElsewhere(const BlockKey& key) const { return elsewhere_.count(pack(key)) > 0; }
-  const std::unordered_set<uint64_t>& blocksElsewhere() const { return elsewhere_; }
+  bool heldElsewhere(const BlockKey& key) const { return elsewhere_.contains(key); }
+  const BlockKeySet& blocksElsewhere() const { return elsewhere_; }
   /// Blocks the backing gave back, and those it failed to.
   uint64_t blocksTakenBack() const { return taken_back_; }
   uint64_t blocksLostInBacking() const { return lost_in_backing_; }
@@ -250,7 +250,7 @@ class TsdfMap {
   std::vector<uint64_t> table_keys_;  ///< packed key + 1, 0 = empty slot
   std::vector<int32_t> table_values_;
   BlockBacking* backing_ = nullptr;
-  std::unordered_set<uint64_t> elsewhere_;  ///< packed keys of blocks in the backing
+  BlockKeySet elsewhere_;  ///< blocks in the backing
   uint64_t taken_back_ = 0, lost_in_backing_ = 0;
 };
 

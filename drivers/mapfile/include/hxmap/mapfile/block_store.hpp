@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "hxmap/core/expected.hpp"
+#include "hxmap/mapfile/record_index.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
 
 namespace hxmap::drv {
@@ -48,6 +49,9 @@ struct BlockStoreStats {
   uint64_t live_bytes = 0;      ///< of which records still held
   uint64_t bytes_written = 0;   ///< since the start (compactions included)
   uint64_t compactions = 0;
+  /// Memory the store holds now: voxels waiting to be written or read
+  /// ahead (each bounded below), and the index of the records on disk.
+  uint64_t queued_bytes = 0, read_ahead_bytes = 0, index_bytes = 0;
 };
 
 class BlockStore : public alg::BlockBacking {
@@ -79,12 +83,7 @@ class BlockStore : public alg::BlockBacking {
   static constexpr size_t kMaxReadAheadBytes = size_t{32} << 20;
 
  private:
-  struct Record {
-    uint64_t offset = 0;
-    uint32_t stored = 0;
-    uint32_t crc = 0;
-    bool seen_through = false;
-  };
+  using Record = RecordIndex::Record;
   /// A block's voxels not (yet) on disk.
   struct Queued {
     std::string raw;
@@ -105,7 +104,7 @@ class BlockStore : public alg::BlockBacking {
   std::condition_variable written_;  ///< put() and flush(): the queue went down
   int fd_ = -1;
   std::string path_;
-  std::unordered_map<uint64_t, Record> index_;   ///< packed key -> record on disk
+  RecordIndex index_;                            ///< packed key -> record on disk
   std::unordered_map<uint64_t, Queued> queued_;  ///< packed key -> voxels waiting for the writer
   std::deque<uint64_t> order_;                   ///< queued keys, oldest first (may name keys taken since)
   size_t queued_bytes_ = 0;
