@@ -57,21 +57,27 @@ Expected<dds::PublisherParams> publisherParams(const HxmapConfig& c) {
 
 std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
   return fmt::format(
-      "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, {:.2f} "
-      "MiB, "
-      "{:.1f} KiB/s over {:.1f} s), work items dropped {}, write errors {}\n"
-      "  map as MarkerArray: {} samples, {:.2f} MiB, {} whole-map resends to readers that joined; as PointCloud2: {} "
-      "samples, {:.2f} MiB; "
-      "final data not acknowledged by every reliable reader in time: {} times\n"
-      "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} ms in "
-      "all); "
-      "meshing and writing chunks {:.1f} ms in all on hx-publish\n",
-      s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks,
-      static_cast<double>(s.chunk_bytes) / (1 << 20),
-      wall_s > 0 ? static_cast<double>(s.chunk_bytes) / 1024.0 / wall_s : 0.0, wall_s, s.items_dropped, s.write_errors,
-      s.marker_arrays, static_cast<double>(s.marker_bytes) / (1 << 20), s.map_resends, s.clouds,
-      static_cast<double>(s.cloud_bytes) / (1 << 20), s.ack_timeouts, s.frame_cost_p50_ms, s.frame_cost_max_ms,
-      s.snapshot_ms_total, s.mesh_ms_total);
+             "dds: poses {}, transforms {}, trajectories {}, health {}, map updates {} ({} region meshes, {} chunks, "
+             "{:.2f} "
+             "MiB, "
+             "{:.1f} KiB/s over {:.1f} s), work items dropped {}, write errors {}\n"
+             "  map as MarkerArray: {} samples, {:.2f} MiB, {} whole-map resends to readers that joined; as "
+             "PointCloud2: {} "
+             "samples, {:.2f} MiB; "
+             "final data not acknowledged by every reliable reader in time: {} times\n"
+             "  publishing cost on the frontend thread: p50 {:.3f} ms, max {:.2f} ms per frame (region copies {:.1f} "
+             "ms in "
+             "all); "
+             "meshing and writing chunks {:.1f} ms in all on hx-publish\n",
+             s.poses, s.transforms, s.paths, s.health, s.map_updates, s.regions, s.chunks,
+             static_cast<double>(s.chunk_bytes) / (1 << 20),
+             wall_s > 0 ? static_cast<double>(s.chunk_bytes) / 1024.0 / wall_s : 0.0, wall_s, s.items_dropped,
+             s.write_errors, s.marker_arrays, static_cast<double>(s.marker_bytes) / (1 << 20), s.map_resends, s.clouds,
+             static_cast<double>(s.cloud_bytes) / (1 << 20), s.ack_timeouts, s.frame_cost_p50_ms, s.frame_cost_max_ms,
+             s.snapshot_ms_total, s.mesh_ms_total) +
+         (s.region_waits > 0
+              ? fmt::format("  region updates held back until their blocks were back in memory: {}\n", s.region_waits)
+              : std::string());
 }
 
 int echoCommand(const EchoOptions& o) {

@@ -23,6 +23,7 @@
 #include "hxmap/dds/publisher.hpp"
 #include "hxmap/dds/type_hash.hpp"
 #include "hxmap/geometry/se3.hpp"
+#include "hxmap/mapfile/block_store.hpp"
 #include "hxmap/tsdf/mesh_extract.hpp"
 #include "hxmap/tsdf/patch.hpp"
 
@@ -560,6 +561,61 @@ TEST(DdsLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {
       },
       20))
       << markers.totals().first << " and " << map.totals().first << " triangles, expected " << expected;
+}
+
+TEST(DdsLoopback, ARegionWithBlocksOutOfMemoryKeepsItsLastMeshUntilTheyAreBack) {
+  // Under a memory budget, blocks move out to disk while the map changes
+  // beside them: a region re-meshed then would go out without their
+  // surface, and readers would drop it.
+  const std::string pre = prefix("budget");
+  auto pub = Publisher::start(params(pre));
+  ASSERT_TRUE(pub) << pub.message();
+  auto participant = Participant::create(kDomain);
+  ASSERT_TRUE(participant) << participant.message();
+  auto reader =
+      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+  auto chunks = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
+                               topicQos(Topic::kMapChunks));
+  ASSERT_TRUE(reader && chunks);
+  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
+  alg::TsdfMap map = twoSpheres();
+  const Trajectory trajectory{{1, poseAt(0)}};
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const size_t expected = alg::extractMesh(map, alg::MeshParams{}).triangles.size();
+  ReceivedMarkers markers;
+  ReceivedMap received;
+  auto both = [&] {
+    drainMarkers(*reader, markers);
+    drainMap(*chunks, received);
+    return markers.totals().first == expected && received.totals().first == expected;
+  };
+  ASSERT_TRUE(waitFor(both, 20)) << markers.totals().first << " and " << received.totals().first << " of " << expected;
+  // Every other block out; every block left marked changed.
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  map.setBacking(store->get());
+  std::vector<int32_t> out;
+  for (size_t b = 0; b < map.blockCount(); b += 2) out.push_back(static_cast<int32_t>(b));
+  ASSERT_EQ(map.removeBlocks(out), 0u);
+  map.markAllChanged(map.revision());
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const PublisherStats held = (*pub)->stats();
+  EXPECT_GT(held.region_waits, 0u);
+  // Nothing is lost meanwhile: the readers hold every triangle still.
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  drainMarkers(*reader, markers);
+  drainMap(*chunks, received);
+  EXPECT_EQ(markers.totals().first, expected);
+  EXPECT_EQ(received.totals().first, expected);
+  // Back in memory, the regions held back go out (the same surface).
+  for (const Eigen::Vector3i& k : map.blocksElsewhere().keys()) map.findOrAllocate(k);
+  (*pub)->flush(map, trajectory, RunCounters{});
+  const PublisherStats sent = (*pub)->stats();
+  EXPECT_GT(held.regions_waiting, 0u);
+  EXPECT_EQ(sent.regions_waiting, 0u);
+  EXPECT_EQ(sent.region_waits, held.region_waits);
+  EXPECT_GT(sent.regions, held.regions);
+  ASSERT_TRUE(waitFor(both, 20)) << markers.totals().first << " and " << received.totals().first << " of " << expected;
 }
 
 // /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):

@@ -42,12 +42,31 @@ std::vector<RegionKey> changedRegions(const TsdfMap& map, uint64_t revision, int
 std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks) {
   std::vector<RegionKey> regions;
   regions.reserve(map.blockCount());
-  for (size_t b = 0; b < map.blockCount(); ++b) regions.push_back(regionOf(map.key(b), region_blocks));
+  // Neighbouring blocks mostly share a region: the sort below gets far
+  // fewer entries than blocks (hundreds of thousands out on a long run).
+  auto add = [&](const BlockKey& k) {
+    const RegionKey r = regionOf(k, region_blocks);
+    if (regions.empty() || regions.back() != r) regions.push_back(r);
+  };
+  for (size_t b = 0; b < map.blockCount(); ++b) add(map.key(b));
   // Blocks out of memory (a memory budget) are still part of the map.
-  map.blocksElsewhere().forEach([&](const BlockKey& k) { regions.push_back(regionOf(k, region_blocks)); });
+  map.blocksElsewhere().forEach(add);
   std::sort(regions.begin(), regions.end(), keyLess);
   regions.erase(std::unique(regions.begin(), regions.end()), regions.end());
   return regions;
+}
+
+bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks) {
+  if (map.blocksElsewhere().empty()) return false;
+  const BlockKey lo = region * region_blocks;
+  for (int z = 0; z <= region_blocks; ++z) {
+    for (int y = 0; y <= region_blocks; ++y) {
+      for (int x = 0; x <= region_blocks; ++x) {
+        if (map.heldElsewhere(lo + BlockKey(x, y, z))) return true;
+      }
+    }
+  }
+  return false;
 }
 
 TsdfMap copyRegions(const TsdfMap& map, const std::vector<RegionKey>& regions, int region_blocks) {

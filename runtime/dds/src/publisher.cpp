@@ -117,7 +117,24 @@ void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must
   auto work = std::make_unique<Work>();
   work->kind = Work::kMap;
   work->stamp_ns = stamp_ns;
-  work->regions = alg::changedRegions(map, map_revision_, params_.region_blocks);
+  // DESIGN: under a memory budget a changed region may have blocks on disk:
+  // meshed now, it would go out without their surface and readers would
+  // drop it. Such a region waits (readers keep its last mesh) until its
+  // blocks are back; the run's last flush brings every block back first.
+  std::vector<alg::RegionKey> changed = alg::changedRegions(map, map_revision_, params_.region_blocks);
+  for (const auto& [key, r] : waiting_regions_) changed.push_back(r);
+  std::unordered_map<uint64_t, alg::RegionKey> still_waiting;
+  std::unordered_set<uint64_t> taken;
+  for (const auto& r : changed) {
+    const uint64_t key = packRegion(r);
+    if (!taken.insert(key).second) continue;
+    if (alg::regionPartlyElsewhere(map, r, params_.region_blocks)) {
+      still_waiting.emplace(key, r);
+    } else {
+      work->regions.push_back(r);
+    }
+  }
+  region_waits_ += still_waiting.size();
   // Regions sent before that hold no block now (a loop closure rebuilt the
   // map without them) go out too: meshed empty, they are deleted.
   const std::vector<alg::RegionKey> occupied = alg::occupiedRegions(map, params_.region_blocks);
@@ -130,7 +147,11 @@ void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must
       work->regions.push_back(r);
     }
   }
-  if (work->regions.empty()) return;
+  if (work->regions.empty()) {
+    map_revision_ = map.revision();
+    waiting_regions_ = std::move(still_waiting);
+    return;
+  }
   std::vector<alg::RegionKey> now_sent;
   for (const auto& r : work->regions) {
     if (live.count(packRegion(r)) != 0) now_sent.push_back(r);
@@ -141,6 +162,7 @@ void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must
   // Refused: the regions stay marked and go out with the next update.
   if (!push(std::move(work), must)) return;
   map_revision_ = revision;
+  waiting_regions_ = std::move(still_waiting);
   for (uint64_t key : vanished) sent_regions_.erase(key);
   for (const auto& r : now_sent) sent_regions_.emplace(packRegion(r), r);
 }
@@ -474,6 +496,8 @@ PublisherStats Publisher::stats() const {
   s.health = health_.load();
   s.map_updates = map_updates_.load();
   s.regions = regions_written_.load();
+  s.region_waits = region_waits_;
+  s.regions_waiting = waiting_regions_.size();
   s.chunks = chunks_.load();
   s.chunk_bytes = chunk_bytes_.load();
   s.marker_arrays = marker_arrays_.load();

@@ -34,6 +34,10 @@ std::vector<RegionKey> changedRegions(const TsdfMap& map, uint64_t revision, int
 
 /// Regions holding at least one block, sorted and unique.
 std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks);
+/// Whether a block region r's mesh reads (its blocks and the layer beyond
+/// its +x/+y/+z faces) is out of memory (a memory budget): meshed now, the
+/// region would lack that block's surface.
+bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks);
 
 /// A map holding copies of the blocks of `regions` and of the blocks just
 /// beyond their +x/+y/+z faces, which the regions' marching cubes read.

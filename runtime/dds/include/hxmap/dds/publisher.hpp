@@ -91,6 +91,10 @@ struct PublisherStats {
   uint64_t poses = 0, transforms = 0, paths = 0, health = 0;
   uint64_t map_updates = 0;     ///< snapshots meshed and written
   uint64_t regions = 0;         ///< region meshes written
+  /// Changed regions held back at an update because some of their blocks
+  /// were out of memory (a memory budget), summed over updates.
+  uint64_t region_waits = 0;
+  uint64_t regions_waiting = 0;  ///< of which still held back now
   uint64_t chunks = 0;          ///< chunk samples written (empty ones included)
   uint64_t chunk_bytes = 0;     ///< their payload (vertices, colors, indices)
   uint64_t marker_arrays = 0;   ///< MarkerArray samples written on the map topic (one per update)
@@ -159,9 +163,11 @@ class Publisher {
 
   // Calling thread.
   uint64_t map_revision_ = 0;
-  std::unordered_map<uint64_t, alg::RegionKey> sent_regions_;
-  std::optional<OdometryMessage>
-      last_odom_;  ///< the previous frame's, for the velocity  ///< regions handed to hx-publish, still in the map
+  std::unordered_map<uint64_t, alg::RegionKey> sent_regions_;  ///< regions handed to hx-publish, still in the map
+  /// Changed regions with blocks out of memory: sent once they are back.
+  std::unordered_map<uint64_t, alg::RegionKey> waiting_regions_;
+  uint64_t region_waits_ = 0;
+  std::optional<OdometryMessage> last_odom_;  ///< the previous frame's, for the velocity
   int64_t last_map_ns_ = 0, last_path_ns_ = 0, last_health_ns_ = 0;
   uint32_t flush_count_ = 0;
   std::vector<double> frame_cost_ms_;
