@@ -212,18 +212,31 @@ std::string loopClosureSummary(const Frontend& frontend) {
   const LoopCloser* closer = frontend.loopCloser();
   const auto [stored, bytes] = closer ? closer->observations() : std::pair<size_t, size_t>{0, 0};
   return fmt::format(
-      "loop closure: {} keyframes ({} made before a correction reached the frontend), {} compared with older ones "
-      "({:.1f} ms each; {} skipped behind newer ones, {} shed), "
-      "{} candidates: {} beyond the drift bound, {} refused by the ICP check, {} refused by the pose graph, {} already "
-      "consistent, {} closed and {} applied (largest correction {:.1f} cm, {:.2f} deg); pose graph {} keyframes, cost "
-      "{:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes replaced by their alignment {} times ({} "
-      "alignments failed, {} taken unchecked); keyframe map fused in {:.0f} ms, rebuilt {} times from {} keyframe observations in {:.0f} ms "
-      "({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
-      l.keyframes, l.late_keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0, l.skipped, l.shed,
-      l.candidates, l.refused_drift, l.refused_icp, l.refused_graph, l.consistent, l.closures, l.applied,
-      100 * l.largest_correction_m, l.largest_correction_deg, closer ? closer->graph().nodes().size() : 0,
-      l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps, l.odometry_unverified, l.odometry_unchecked, l.fuse_ms, l.closures,
-      l.keyframes_rebuilt, l.rebuild_ms, stored, static_cast<double>(bytes) / (1 << 20), l.stale_refinements);
+             "loop closure: {} keyframes ({} made before a correction reached the frontend), {} compared with older "
+             "ones "
+             "({:.1f} ms each; {} skipped behind newer ones, {} shed), "
+             "{} candidates: {} beyond the drift bound, {} refused by the ICP check, {} refused by the pose graph, {} "
+             "already "
+             "consistent, {} closed and {} applied (largest correction {:.1f} cm, {:.2f} deg); pose graph {} "
+             "keyframes, cost "
+             "{:.1f} -> {:.1f}, {:.1f} ms solving; tracked motion between keyframes replaced by their alignment {} "
+             "times ({} "
+             "alignments failed, {} taken unchecked); keyframe map fused in {:.0f} ms, rebuilt {} times from {} "
+             "keyframe observations in {:.0f} ms "
+             "({} stored, {:.0f} MiB); {} refinement results dropped as stale\n",
+             l.keyframes, l.late_keyframes, l.queries, l.queries ? l.detect_ms / static_cast<double>(l.queries) : 0.0,
+             l.skipped, l.shed, l.candidates, l.refused_drift, l.refused_icp, l.refused_graph, l.consistent, l.closures,
+             l.applied, 100 * l.largest_correction_m, l.largest_correction_deg,
+             closer ? closer->graph().nodes().size() : 0, l.cost_before, l.cost_after, l.solve_ms, l.odometry_jumps,
+             l.odometry_unverified, l.odometry_unchecked, l.fuse_ms, l.closures, l.keyframes_rebuilt, l.rebuild_ms,
+             stored, static_cast<double>(bytes) / (1 << 20), l.stale_refinements) +
+         (l.map_bytes_max > 0
+              ? fmt::format("  keyframe map under a quarter of the memory budget ({:.0f} MiB): largest {:.1f} MiB "
+                            "resident, {} blocks moved out, {} brought back, {} lost\n",
+                            static_cast<double>(frontend.loopBudgetBytes()) / (1 << 20),
+                            static_cast<double>(l.map_bytes_max) / (1 << 20), l.blocks_moved_out, l.blocks_brought_back,
+                            l.blocks_lost)
+              : std::string());
 }
 
 // ---------------------------------------------------------------- run
@@ -251,6 +264,7 @@ struct RunPipeline {
   ParallelFor parallel;
   FrontendParams params;
   std::unique_ptr<drv::BlockStore> block_store;  ///< tsdf.max_resident_mib; outlives the frontend
+  std::unique_ptr<drv::BlockStore> loop_store;   ///< the same, for loop closure's keyframe map
   std::unique_ptr<Frontend> frontend;
 #ifdef HXMAP_HAVE_DDS
   std::unique_ptr<dds::Publisher> publisher;
@@ -440,6 +454,12 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
     if (!store) return store.error();
     p.block_store = std::move(*store);
     p.frontend->setBlockBacking(p.block_store.get());
+    if (c.loop_closure.enabled && c.relocalization.enabled) {
+      auto loop_store = drv::BlockStore::create(p.folder.staging());
+      if (!loop_store) return loop_store.error();
+      p.loop_store = std::move(*loop_store);
+      p.frontend->setLoopBlockBacking(p.loop_store.get());
+    }
   }
 #ifdef HXMAP_HAVE_DDS
   if (o.dds || c.dds.enabled) {
@@ -900,6 +920,10 @@ int runCommand(const RunOptions& options) {
     memory_text = memoryText(c, memory_in_run, p.block_store->stats(), p.frontend->trajectory().size());
     p.frontend->setBlockBacking(nullptr);
     p.block_store.reset();  // its scratch file goes before the folder is committed
+  }
+  if (p.loop_store) {
+    p.frontend->setLoopBlockBacking(nullptr);  // the keyframe map's blocks out are not an output
+    p.loop_store.reset();
   }
 #ifdef HXMAP_HAVE_DDS
   std::string dds_text;

@@ -14,6 +14,7 @@
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "hxmap/mapfile/block_store.hpp"
 #include "synthetic_fixture.hpp"
 
 namespace hxmap::rt {
@@ -88,19 +89,31 @@ class LoopClosureRun : public ::testing::Test {
   /// that many frames after it was found (keyframes made meanwhile reach
   /// the closer in the frame before it).
   static Run run(const std::vector<RgbdFrame>& frames, const Trajectory& truth, bool loop_closure, double bias,
-                 int late_frames = 0) {
+                 int late_frames = 0, double budget_mib = 0) {
     FrontendParams p;
     p.quality_enabled = false;
     p.refine.enabled = false;
     p.feedback.enabled = false;
     p.loop_closure.enabled = loop_closure;
     p.odometry_bias << 0.0, bias * M_PI / 180.0, 0.0, 0.02 * bias, 0.0, 0.0;  // deg and m per frame
+    p.tsdf.max_resident_mib = budget_mib;
     Frontend fe(cam_, p);
     fe.setInitialPose(truth.front().T_world_cam);
+    std::unique_ptr<drv::BlockStore> store, loop_store;
+    if (budget_mib > 0) {
+      auto a = drv::BlockStore::create(::testing::TempDir()), b = drv::BlockStore::create(::testing::TempDir());
+      EXPECT_TRUE(a && b);
+      store = std::move(*a);
+      loop_store = std::move(*b);
+      fe.setBlockBacking(store.get());
+      fe.setLoopBlockBacking(loop_store.get());
+    }
     Steps steps;
     if (late_frames <= 0) {
       for (const auto& f : frames) steps.add(fe.process(f));
-      return finish(fe, truth, steps);
+      Run r = finish(fe, truth, steps);
+      fe.setLoopBlockBacking(nullptr);
+      return r;
     }
     std::unique_ptr<LoopCloser> closer = fe.detachLoopCloser();
     std::vector<std::pair<size_t, LoopCorrection>> in_flight;  // due frame, correction
@@ -173,6 +186,29 @@ TEST_F(LoopClosureRun, UndoesInjectedDriftAndLeavesNoDoubledWalls) {
   // between keyframes before the closure is gone (68 % here, 35 % without).
   EXPECT_GT(precision_on, 0.6);
   EXPECT_GT(precision_on, precision_off + 0.2);
+}
+
+TEST_F(LoopClosureRun, UnderAMemoryBudgetTheKeyframeMapKeepsToItsShareAndTheLoopStillCloses) {
+  // The keyframe map covers the whole path like the map: under a budget it
+  // moves its own blocks out (a quarter of the budget) and brings back
+  // those a comparison looks at.
+  const double bias_deg = 0.1;
+  const Run off = run(loop_frames_, loop_truth_, false, bias_deg);
+  const double budget_mib = 12;
+  const Run on = run(loop_frames_, loop_truth_, true, bias_deg, 0, budget_mib);
+  const LoopClosureCounters& c = on.counters;
+  std::printf(
+      "budget %.0f MiB: ATE %.2f -> %.2f cm, %lu closures; keyframe map at most %.2f MiB, %lu blocks moved out, "
+      "%lu back\n",
+      budget_mib, 100 * off.ate_m, 100 * on.ate_m, static_cast<unsigned long>(c.closures),
+      static_cast<double>(c.map_bytes_max) / (1 << 20), static_cast<unsigned long>(c.blocks_moved_out),
+      static_cast<unsigned long>(c.blocks_brought_back));
+  EXPECT_GT(c.blocks_moved_out, 0u);
+  EXPECT_GT(c.blocks_brought_back, 0u);
+  EXPECT_EQ(c.blocks_lost, 0u);
+  EXPECT_LE(static_cast<double>(c.map_bytes_max), budget_mib / 4 * (1 << 20));
+  EXPECT_GE(c.closures, 1u);
+  EXPECT_LT(on.ate_m, 0.4 * off.ate_m);
 }
 
 TEST_F(LoopClosureRun, ChangesNothingWithoutDriftOrOnTheOrbit) {

@@ -14,6 +14,7 @@
 #include "hxmap/feedback/residuals.hpp"
 #include "hxmap/geometry/se3.hpp"
 #include "hxmap/tsdf/integrate.hpp"
+#include "memory_budget.hpp"
 
 namespace hxmap::rt {
 
@@ -71,6 +72,7 @@ void Frontend::makeLoopCloser() {
     loop_closer_ = std::make_unique<LoopCloser>(
         LoopCloserParams{params_.loop_closure, params_.relocalization, params_.tracking, params_.tsdf, params_.raycast},
         camera_, parallel_);
+    loop_closer_->setBlockBacking(loop_backing_, loopBudgetBytes());
   }
 }
 
@@ -84,26 +86,6 @@ void Frontend::resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes) {
   // which would drop the saved map's blocks.
   loop_closer_.reset();
 }
-
-namespace {
-
-/// Whether a block (center c in the camera frame) can be in the view of a
-/// camera out to max_depth_m; `radius` is half the block's diagonal.
-bool blockInView(const Eigen::Vector3f& c, float radius, const alg::PinholeCamera& cam, float max_depth_m) {
-  if (c.z() < -radius || c.z() > max_depth_m + radius) return false;
-  const float z = std::max(c.z(), 0.05f);
-  const float mu = static_cast<float>(cam.fx) * radius / z, mv = static_cast<float>(cam.fy) * radius / z;
-  const float u = static_cast<float>(cam.fx) * c.x() / z + static_cast<float>(cam.cx);
-  const float v = static_cast<float>(cam.fy) * c.y() / z + static_cast<float>(cam.cy);
-  return u > -mu && u < static_cast<float>(cam.width) + mu && v > -mv && v < static_cast<float>(cam.height) + mv;
-}
-
-/// The center of block `key` in the frame T_cam_world maps the world to.
-Eigen::Vector3f blockCenter(const Eigen::Isometry3f& T_cam_world, const alg::BlockKey& key, float block_size) {
-  return T_cam_world * (key.cast<float>() * block_size + Eigen::Vector3f::Constant(0.5f * block_size));
-}
-
-}  // namespace
 
 size_t Frontend::budgetBytes() const { return static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20)); }
 
@@ -125,23 +107,8 @@ void Frontend::prefetch(const Eigen::Isometry3d& T_world_predicted) {
   if (map_.blocksElsewhere().empty()) return;
   const auto t0 = std::chrono::steady_clock::now();
   const Eigen::Isometry3f T_cam_world = T_world_predicted.inverse().cast<float>();
-  const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);
-  const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
-  // Regions of blocks out of view are skipped whole: the cost follows the
-  // view, not the length of the path.
-  const float side = alg::BlockKeySet::kRegionSide * map_.blockSize();
-  const float region_radius = 0.5f * side * std::sqrt(3.0f);
-  std::vector<std::pair<float, uint64_t>> wanted;  // depth, packed key
-  map_.blocksElsewhere().forEachIn(
-      [&](const alg::BlockKey& lo) {
-        const Eigen::Vector3f c =
-            T_cam_world * (lo.cast<float>() * map_.blockSize() + Eigen::Vector3f::Constant(0.5f * side));
-        return blockInView(c, region_radius, camera_, max_depth);
-      },
-      [&](const alg::BlockKey& k) {
-        const Eigen::Vector3f c = blockCenter(T_cam_world, k, map_.blockSize());
-        if (blockInView(c, radius, camera_, max_depth)) wanted.emplace_back(c.z(), alg::packBlockKey(k));
-      });
+  std::vector<std::pair<float, uint64_t>> wanted =
+      budget::blocksOutInView(map_, T_cam_world, camera_, static_cast<float>(params_.tsdf.max_integration_depth_m));
   // Nearest first, as many as fit in the budget (a view that holds more
   // than the budget gets its nearest part) and the per-frame cap.
   const size_t budget = budgetBytes(), resident = map_.memory().bytes;
@@ -188,29 +155,13 @@ void Frontend::enforceBudget(const Eigen::Isometry3d& T_world_cam) {
   // more new surface a frame than that. After a loop closure replaced the
   // map, the floor moves thousands of blocks in one frame: a few ms at
   // this cost (33 ms when this thread compressed them).
-  if (resident <= budget * 9 / 10) return;
-  const auto t0 = std::chrono::steady_clock::now();
-  const size_t block_bytes = sizeof(alg::VoxelBlock);
-  const size_t to_80 = (resident - budget * 8 / 10 + block_bytes - 1) / block_bytes;
-  const size_t to_100 =
-      resident > budget ? (resident - budget + block_bytes - 1) / block_bytes + alg::TsdfMap::chunkBlocks() : 0;
-  size_t count = std::min(to_80, std::max(to_100, static_cast<size_t>(std::max(1, params_.max_evictions_per_frame))));
-  count = std::min(count, map_.blockCount());
+  const size_t count = budget::blocksToMoveOut(
+      resident, budget, static_cast<size_t>(std::max(0, params_.max_evictions_per_frame)), map_.blockCount());
   if (count == 0) return;
-  const Eigen::Isometry3f T_cam_world = T_world_cam.inverse().cast<float>();
-  const float radius = 0.5f * map_.blockSize() * std::sqrt(3.0f);
-  const float max_depth = static_cast<float>(params_.tsdf.max_integration_depth_m);
-  std::vector<std::pair<float, int32_t>> far;  // -score, index
-  far.reserve(map_.blockCount());
-  for (size_t i = 0; i < map_.blockCount(); ++i) {
-    const Eigen::Vector3f c = blockCenter(T_cam_world, map_.key(i), map_.blockSize());
-    const float d = c.norm() * (blockInView(c, radius, camera_, max_depth) ? 0.25f : 1.0f);
-    far.emplace_back(-d, static_cast<int32_t>(i));
-  }
-  std::nth_element(far.begin(), far.begin() + static_cast<std::ptrdiff_t>(count - 1), far.end());
-  std::vector<int32_t> victims;
-  victims.reserve(count);
-  for (size_t i = 0; i < count; ++i) victims.push_back(far[i].second);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<int32_t> victims =
+      budget::farthestBlocks(map_, T_world_cam.inverse().cast<float>(), camera_,
+                             static_cast<float>(params_.tsdf.max_integration_depth_m), count);
   memory_counters_.lost += map_.removeBlocks(std::move(victims));
   if (map_.memory().bytes > budget) ++memory_counters_.frames_over_budget;
   memory_counters_.evicted += count;

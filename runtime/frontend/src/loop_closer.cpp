@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <tuple>
 
 #include <spdlog/spdlog.h>
 
 #include "hxmap/feedback/residuals.hpp"
+#include "memory_budget.hpp"
 
 namespace hxmap::rt {
 
@@ -185,7 +187,14 @@ void LoopCloser::finishKeyframe(bool fuse) {
   // Fused only now: the map a keyframe is checked against must not hold
   // that keyframe's own surfaces at its drifted pose.
   const auto t0 = std::chrono::steady_clock::now();
-  if (fuse && observations_.count(current_.id)) alg::integrate(map_, observations_.at(current_.id), parallel_);
+  if (fuse && observations_.count(current_.id)) {
+    const alg::DepthObservation& o = observations_.at(current_.id);
+    // What the keyframe sees comes back first (fusion would bring back
+    // the blocks it reaches one by one anyway).
+    bringBackView(o.T_world_cam.cast<double>());
+    alg::integrate(map_, o, parallel_);
+    keepWithinBudget(o.T_world_cam.cast<double>());
+  }
   counters_.fuse_ms += msSince(t0);
   current_ = LoopKeyframe{};  // the frame's buffers go back
   candidates_.clear();
@@ -219,11 +228,44 @@ Eigen::Isometry3d LoopCloser::odometry(const LoopKeyframe& kf) {
   return aligned;
 }
 
+void LoopCloser::setBlockBacking(alg::BlockBacking* backing, size_t budget_bytes) {
+  backing_ = budget_bytes > 0 ? backing : nullptr;
+  budget_bytes_ = backing_ ? budget_bytes : 0;
+  map_.setBacking(backing_);
+}
+
+void LoopCloser::bringBackView(const Eigen::Isometry3d& T_world_cam) {
+  if (!backing_ || map_.blocksElsewhere().empty()) return;
+  // DESIGN: on this thread, not the frontend's: waiting on the disk here
+  // costs no frame its deadline.
+  const uint64_t lost = map_.blocksLostInBacking(), back = map_.blocksTakenBack();
+  for (const auto& [z, k] : budget::blocksOutInView(map_, T_world_cam.inverse().cast<float>(), camera_,
+                                                    static_cast<float>(params_.tsdf.max_integration_depth_m))) {
+    map_.findOrAllocate(alg::unpackBlockKey(k));
+  }
+  counters_.blocks_brought_back += map_.blocksTakenBack() - back;
+  counters_.blocks_lost += map_.blocksLostInBacking() - lost;
+}
+
+void LoopCloser::keepWithinBudget(const Eigen::Isometry3d& T_world_cam) {
+  if (!backing_) return;
+  const size_t count = budget::blocksToMoveOut(map_.memory().bytes, budget_bytes_, std::numeric_limits<size_t>::max(),
+                                               map_.blockCount());
+  if (count > 0) {
+    counters_.blocks_lost +=
+        map_.removeBlocks(budget::farthestBlocks(map_, T_world_cam.inverse().cast<float>(), camera_,
+                                                 static_cast<float>(params_.tsdf.max_integration_depth_m), count));
+    counters_.blocks_moved_out += count;
+  }
+  counters_.map_bytes_max = std::max(counters_.map_bytes_max, map_.memory().bytes);
+}
+
 std::vector<alg::ModelView> LoopCloser::render(const alg::PreprocessedFrame& frame,
-                                               const Eigen::Isometry3d& T_world_cam) const {
+                                               const Eigen::Isometry3d& T_world_cam) {
   std::vector<alg::ModelView> model;
   const int levels = static_cast<int>(frame.levels.size());
   if (levels == 0) return model;
+  bringBackView(T_world_cam);
   const int model_level = std::clamp(alg::modelLevel(params_.tracking, camera_.width), 0, levels - 1);
   const cv::Mat hint = model_level == 0 ? frame.depth_m : frame.levels[model_level].depth;
   model.push_back(alg::raycast(map_, camera_.level(model_level), T_world_cam.cast<float>(), params_.raycast, false,
@@ -344,6 +386,16 @@ void LoopCloser::rebuildStep() {
   map_ = std::move(*rebuilt_);
   rebuilt_.reset();
   building_.map = std::make_shared<alg::TsdfMap>(map_);
+  if (backing_) {
+    // The blocks out of memory were the old map's.
+    backing_->clear();
+    map_.setBacking(backing_);
+    if (!rebuild_ids_.empty()) {
+      if (const auto last = observations_.find(rebuild_ids_.back()); last != observations_.end()) {
+        keepWithinBudget(last->second.T_world_cam.cast<double>());
+      }
+    }
+  }
   corrections_.push_back(building_.newest);
   correction_ = std::move(building_);
   building_ = LoopCorrection{};

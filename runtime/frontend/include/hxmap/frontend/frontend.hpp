@@ -127,6 +127,15 @@ class Frontend {
     backing_ = backing;
     map_.setBacking(backing);
   }
+  /// Where loop closure's keyframe map puts its blocks past a quarter of
+  /// the memory budget (a store of its own; not owned). Before the first
+  /// frame. DESIGN: the keyframe map covers the whole path like the map
+  /// itself; without its own budget a long run's memory grew with it.
+  void setLoopBlockBacking(alg::BlockBacking* backing) {
+    loop_backing_ = backing;
+    if (loop_closer_) loop_closer_->setBlockBacking(loop_backing_, loopBudgetBytes());
+  }
+  size_t loopBudgetBytes() const { return budgetBytes() / 4; }
   /// Brings every block out of memory back (for outputs that need the
   /// whole map: the final mesh, --save-map); the budget is exceeded after.
   void restoreEvicted();
@@ -344,6 +353,7 @@ class Frontend {
   std::optional<size_t> lost_since_;  ///< trajectory index of the first frame of the current loss
   bool initialized_ = false;
   alg::BlockBacking* backing_ = nullptr;
+  alg::BlockBacking* loop_backing_ = nullptr;
   MemoryCounters memory_counters_;
   uint64_t taken_back_seen_ = 0;  ///< map_.blocksTakenBack() when last counted
   bool resuming_ = false, resume_abandoned_ = false;

@@ -59,6 +59,11 @@ struct LoopClosureCounters {
   double largest_correction_m = 0, largest_correction_deg = 0;  ///< the most any keyframe moved in a closure
   double cost_before = 0, cost_after = 0;  ///< pose graph cost, summed over closures
   double detect_ms = 0, solve_ms = 0, rebuild_ms = 0, fuse_ms = 0;  ///< totals (fuse: the keyframe map)
+  /// Under a memory budget: the keyframe map's blocks moved out to its
+  /// store and brought back (for a comparison in their view), and its
+  /// largest resident size once a keyframe is in.
+  uint64_t blocks_moved_out = 0, blocks_brought_back = 0, blocks_lost = 0;
+  size_t map_bytes_max = 0;
 };
 
 /// A keyframe for the loop closer, from the frontend. Images are shared
@@ -119,6 +124,12 @@ class LoopCloser {
 
   /// How its data-parallel loops run (serial on a background thread).
   void setParallel(ParallelFor parallel) { parallel_ = std::move(parallel); }
+  /// A memory budget for the keyframe map: from 90 % of `budget_bytes` its
+  /// blocks farthest from the newest keyframe move out to `backing` (a
+  /// store of its own, used from the thread that runs step()), and come
+  /// back when a comparison looks at them. Null: no budget.
+  void setBlockBacking(alg::BlockBacking* backing, size_t budget_bytes);
+  const alg::TsdfMap& keyframeMap() const { return map_; }
   /// Queues a keyframe; step() takes it in once the work before it is done.
   void add(LoopKeyframe keyframe) { pending_.push_back(std::move(keyframe)); }
   /// Runs the next step; false when there was nothing to do.
@@ -165,7 +176,12 @@ class LoopCloser {
   void rebuildStep();
   /// Meters between consecutive keyframes of the graph from `from` to `to`.
   double pathLength(uint32_t from, uint32_t to) const;
-  std::vector<alg::ModelView> render(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam) const;
+  std::vector<alg::ModelView> render(const alg::PreprocessedFrame& frame, const Eigen::Isometry3d& T_world_cam);
+  /// Under a budget: the keyframe map's blocks out of memory that a camera
+  /// at T_world_cam sees come back; then, from 90 % of the budget, the
+  /// farthest from it move out.
+  void bringBackView(const Eigen::Isometry3d& T_world_cam);
+  void keepWithinBudget(const Eigen::Isometry3d& T_world_cam);
 
   LoopCloserParams params_;
   alg::PinholeCamera camera_;
@@ -173,6 +189,8 @@ class LoopCloser {
   alg::PoseGraph graph_;
   alg::KeyframeDatabase database_;
   alg::TsdfMap map_;  ///< the stored keyframes fused at their graph poses
+  alg::BlockBacking* backing_ = nullptr;
+  size_t budget_bytes_ = 0;
   std::map<uint32_t, alg::DepthObservation> observations_;
   /// Per correction sent: its `newest` (keyframes made before the frontend
   /// applied it arrive in the old frame and are moved by it here).
