@@ -12,6 +12,8 @@
 #include <cstdio>
 #include <cstdlib>
 #include <map>
+#include <memory>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -529,67 +531,69 @@ TEST(DdsMessages, APointCloudWhoseSizesDisagreeIsAnError) {
   EXPECT_NE(bad.message().find("data bytes"), std::string::npos) << bad.message();
 }
 
+// A publisher and, matched with it, a reader of the map as markers and
+// one of its chunks, on the test's own topic names.
+class DdsMapLoopback : public ::testing::Test {
+ protected:
+  void start(const std::string& name) {
+    const std::string pre = prefix(name.c_str());
+    auto pub = Publisher::start(params(pre));
+    ASSERT_TRUE(pub) << pub.message();
+    pub_ = std::move(*pub);
+    auto participant = Participant::create(kDomain);
+    ASSERT_TRUE(participant) << participant.message();
+    participant_.emplace(std::move(*participant));
+    auto reader =
+        Reader::create(*participant_, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
+    auto chunks = Reader::create(*participant_, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
+                                 topicQos(Topic::kMapChunks));
+    ASSERT_TRUE(reader && chunks);
+    reader_.emplace(std::move(*reader));
+    chunks_.emplace(std::move(*chunks));
+    ASSERT_TRUE(waitFor([&] { return pub_->matchedReaders(Topic::kMap) == 1; }, 20));
+  }
+  /// Takes what both readers have; true when each holds `triangles`.
+  bool hold(size_t triangles) {
+    drainMarkers(*reader_, markers_);
+    drainMap(*chunks_, received_);
+    return markers_.totals().first == triangles && received_.totals().first == triangles;
+  }
+  ::testing::AssertionResult reach(size_t triangles) {
+    if (waitFor([&] { return hold(triangles); }, 20)) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << markers_.totals().first << " and " << received_.totals().first
+                                         << " triangles, expected " << triangles;
+  }
+  std::unique_ptr<Publisher> pub_;
+  std::optional<Participant> participant_;
+  std::optional<Reader> reader_, chunks_;
+  ReceivedMarkers markers_;
+  ReceivedMap received_;
+};
+
 // A loop closure replaces the map with one fused anew from the keyframes;
 // regions the new map does not hold must leave the readers' maps too.
-TEST(DdsLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {
-  const std::string pre = prefix("replace");
-  auto pub = Publisher::start(params(pre));
-  ASSERT_TRUE(pub) << pub.message();
-  auto participant = Participant::create(kDomain);
-  ASSERT_TRUE(participant) << participant.message();
-  auto reader =
-      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
-  auto chunks = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
-                               topicQos(Topic::kMapChunks));
-  ASSERT_TRUE(reader && chunks);
-  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
+TEST_F(DdsMapLoopback, RegionsAMapReplacementNoLongerHoldsAreDeleted) {
+  ASSERT_NO_FATAL_FAILURE(start("replace"));
   const alg::TsdfMap before = twoSpheres();
   const Trajectory trajectory{{1, poseAt(0)}};
-  (*pub)->flush(before, trajectory, RunCounters{});
+  pub_->flush(before, trajectory, RunCounters{});
   alg::TsdfMap after(tsdfParams());  // the first sphere only
   addSphere(after, {0.05f, -0.07f, 0.11f}, 0.23f);
   after.markAllChanged(before.revision());
-  (*pub)->flush(after, trajectory, RunCounters{});
-  const size_t expected = alg::extractMesh(after, alg::MeshParams{}).triangles.size();
-  ReceivedMarkers markers;
-  ReceivedMap map;
-  ASSERT_TRUE(waitFor(
-      [&] {
-        drainMarkers(*reader, markers);
-        drainMap(*chunks, map);
-        return markers.totals().first == expected && map.totals().first == expected;
-      },
-      20))
-      << markers.totals().first << " and " << map.totals().first << " triangles, expected " << expected;
+  pub_->flush(after, trajectory, RunCounters{});
+  EXPECT_TRUE(reach(alg::extractMesh(after, alg::MeshParams{}).triangles.size()));
 }
 
-TEST(DdsLoopback, ARegionWithBlocksOutOfMemoryKeepsItsLastMeshUntilTheyAreBack) {
+TEST_F(DdsMapLoopback, ARegionWithBlocksOutOfMemoryKeepsItsLastMeshUntilTheyAreBack) {
   // Under a memory budget, blocks move out to disk while the map changes
   // beside them: a region re-meshed then would go out without their
   // surface, and readers would drop it.
-  const std::string pre = prefix("budget");
-  auto pub = Publisher::start(params(pre));
-  ASSERT_TRUE(pub) << pub.message();
-  auto participant = Participant::create(kDomain);
-  ASSERT_TRUE(participant) << participant.message();
-  auto reader =
-      Reader::create(*participant, topicType(Topic::kMap), topicName(Topic::kMap, pre), topicQos(Topic::kMap));
-  auto chunks = Reader::create(*participant, topicType(Topic::kMapChunks), topicName(Topic::kMapChunks, pre),
-                               topicQos(Topic::kMapChunks));
-  ASSERT_TRUE(reader && chunks);
-  ASSERT_TRUE(waitFor([&] { return (*pub)->matchedReaders(Topic::kMap) == 1; }, 20));
+  ASSERT_NO_FATAL_FAILURE(start("budget"));
   alg::TsdfMap map = twoSpheres();
   const Trajectory trajectory{{1, poseAt(0)}};
-  (*pub)->flush(map, trajectory, RunCounters{});
+  pub_->flush(map, trajectory, RunCounters{});
   const size_t expected = alg::extractMesh(map, alg::MeshParams{}).triangles.size();
-  ReceivedMarkers markers;
-  ReceivedMap received;
-  auto both = [&] {
-    drainMarkers(*reader, markers);
-    drainMap(*chunks, received);
-    return markers.totals().first == expected && received.totals().first == expected;
-  };
-  ASSERT_TRUE(waitFor(both, 20)) << markers.totals().first << " and " << received.totals().first << " of " << expected;
+  ASSERT_TRUE(reach(expected));
   // Every other block out; every block left marked changed.
   auto store = drv::BlockStore::create(::testing::TempDir());
   ASSERT_TRUE(store) << store.message();
@@ -598,24 +602,21 @@ TEST(DdsLoopback, ARegionWithBlocksOutOfMemoryKeepsItsLastMeshUntilTheyAreBack) 
   for (size_t b = 0; b < map.blockCount(); b += 2) out.push_back(static_cast<int32_t>(b));
   ASSERT_EQ(map.removeBlocks(out), 0u);
   map.markAllChanged(map.revision());
-  (*pub)->flush(map, trajectory, RunCounters{});
-  const PublisherStats held = (*pub)->stats();
+  pub_->flush(map, trajectory, RunCounters{});
+  const PublisherStats held = pub_->stats();
   EXPECT_GT(held.region_waits, 0u);
   // Nothing is lost meanwhile: the readers hold every triangle still.
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
-  drainMarkers(*reader, markers);
-  drainMap(*chunks, received);
-  EXPECT_EQ(markers.totals().first, expected);
-  EXPECT_EQ(received.totals().first, expected);
+  EXPECT_TRUE(hold(expected)) << markers_.totals().first << " and " << received_.totals().first << " of " << expected;
   // Back in memory, the regions held back go out (the same surface).
   for (const Eigen::Vector3i& k : map.blocksElsewhere().keys()) map.findOrAllocate(k);
-  (*pub)->flush(map, trajectory, RunCounters{});
-  const PublisherStats sent = (*pub)->stats();
+  pub_->flush(map, trajectory, RunCounters{});
+  const PublisherStats sent = pub_->stats();
   EXPECT_GT(held.regions_waiting, 0u);
   EXPECT_EQ(sent.regions_waiting, 0u);
   EXPECT_EQ(sent.region_waits, held.region_waits);
   EXPECT_GT(sent.regions, held.regions);
-  ASSERT_TRUE(waitFor(both, 20)) << markers.totals().first << " and " << received.totals().first << " of " << expected;
+  EXPECT_TRUE(reach(expected));
 }
 
 // /tf as tf2_ros's listener subscribes (reliable, volatile, keep last 100):
