@@ -4,7 +4,9 @@
 // timing, never "no deadline missed".
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
+#include <map>
 #include <mutex>
 #include <thread>
 
@@ -79,6 +81,69 @@ TEST_F(RealtimeTest, EveryKeyframeReachesTheLoopClosersThread) {
   EXPECT_EQ(fe_.loopCloser()->graph().factors().size() + 1, fe_.keyframes()) << "one odometry factor per keyframe after the first";
   EXPECT_TRUE(fe_.takeLoopKeyframes().empty());
   EXPECT_NE(s.report.find("loop closure:"), std::string::npos) << s.report;
+}
+
+// Each keyframe's database entry: the keyframe's features made by the
+// frontend itself (a run of process() alone), at the keyframe's pose in
+// `fe`'s trajectory.
+void expectDatabaseOfEveryKeyframe(const Frontend& fe, const std::vector<FrameResult>& results,
+                                   const Frontend& reference, const std::string& report) {
+  std::map<uint32_t, size_t> index;  // keyframe id -> trajectory entry
+  for (size_t i = 0; i < results.size(); ++i) {
+    if (results[i].keyframe) index[results[i].keyframe_id] = i;
+  }
+  const auto& kfs = fe.keyframeDatabase().keyframes();
+  ASSERT_EQ(kfs.size(), fe.keyframes()) << report;
+  ASSERT_EQ(kfs.size(), index.size());
+  const auto& ref = reference.keyframeDatabase().keyframes();
+  for (size_t k = 0; k < kfs.size(); ++k) {
+    SCOPED_TRACE("keyframe " + std::to_string(kfs[k].id));
+    ASSERT_EQ(index.count(kfs[k].id), 1u);
+    const Eigen::Isometry3d& T = fe.trajectory()[index[kfs[k].id]].T_world_cam;
+    EXPECT_LT((kfs[k].T_world_cam.matrix() - T.matrix()).cwiseAbs().maxCoeff(), 1e-9) << "at its pose now";
+    // Descriptors as the frontend makes them: same image, same pose (the
+    // frames are noise free and tracking converges to the same poses).
+    const auto r = std::find_if(ref.begin(), ref.end(), [&](const auto& e) { return e.id == kfs[k].id; });
+    if (r == ref.end()) continue;  // the reference made keyframes at other frames
+    ASSERT_EQ(kfs[k].descriptors.rows, r->descriptors.rows);
+    EXPECT_EQ(cv::norm(kfs[k].descriptors, r->descriptors, cv::NORM_HAMMING), 0.0);
+  }
+}
+
+TEST_F(RealtimeTest, KeyframeFeaturesAreMadeOffTheFrontendThreadAndReachItsDatabase) {
+  // Relocalization's keyframe database, filled from the loop closure
+  // thread in real time (with loop closure on, and off: the thread then
+  // only describes keyframes) and after each frame in a serial run.
+  FrontendParams base;
+  base.refine.enabled = false;  // not what this is about (a serial run would run every job)
+  Frontend alone{cam_, base};
+  alone.setInitialPose(T0_);
+  for (const RgbdFrame& f : frames_) alone.process(f);
+  ASSERT_GT(alone.keyframeDatabase().size(), 1u);
+  for (const bool loop : {true, false}) {
+    for (const bool serial : {false, true}) {
+      SCOPED_TRACE(std::string(loop ? "loop closure on" : "loop closure off") + (serial ? ", serial" : ", threads"));
+      FrontendParams p = base;
+      p.loop_closure.enabled = loop;
+      Frontend fe{cam_, p};
+      fe.setInitialPose(T0_);
+      PlaybackSource source(frames_, 20.0);
+      TraceRecorder trace;
+      const RealtimeStats s =
+          serial ? runSerial(source, fe, options_, stop_, &trace) : runRealtime(frames_, fe, options_, stop_, &trace);
+      expectDatabaseOfEveryKeyframe(fe, s.results, alone, s.report);
+      // Made by the background stage, one event per keyframe, none on the
+      // frontend's lane.
+      const auto events = parseTrace(trace.toJson(), "trace");
+      ASSERT_TRUE(events) << events.message();
+      size_t described = 0;
+      for (const TraceEvent& e : *events) described += e.name == "keyframe features" && e.category == "background";
+      EXPECT_EQ(described, fe.keyframes());
+      EXPECT_GT(fe.trackingCounters().keyframe_features_ms, 0.0);
+      EXPECT_NE(s.report.find("keyframe features (ORB"), std::string::npos) << s.report;
+      EXPECT_TRUE(fe.takeLoopKeyframes().empty()) << "nothing left behind";
+    }
+  }
 }
 
 TEST_F(RealtimeTest, FrameLimitEndsTheStreamAfterItsFrames) {

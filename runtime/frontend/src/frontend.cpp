@@ -194,6 +194,7 @@ void Frontend::checkResume(const FrameResult& r) {
   spdlog::warn("not relocalized in the saved map within {} frames: a new map starts here", frames_seen_);
   map_ = alg::TsdfMap(params_.tsdf);
   keyframe_db_ = alg::KeyframeDatabase(params_.relocalization);
+  keyframe_index_.clear();
   keyframe_id_base_ = 0;
   initialized_ = false;
   lost_since_.reset();
@@ -383,13 +384,30 @@ void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& 
     }
   }
   if (!params_.relocalization.enabled) return;
+  keyframe_index_[r.keyframe_id] = trajectory_.size() - 1;  // this frame's entry
+  // DESIGN: in real time a keyframe's ORB features (12-15 ms at 640x480)
+  // are made on loop closure's thread: on the frontend's they were what
+  // made it miss deadlines at 30 FPS (fr1/xyz: 40-53 misses, 1-3 without
+  // them). Relocalization then matches the newest keyframe a few frames
+  // later; offline the features come back before the next frame.
   double features_ms = 0;
   alg::FrameFeatures features;
-  {
+  if (!describe_elsewhere_) {
     StageTimer t(features_ms);
     features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T_world_kf);
   }
   r.stage_ms[kKeyframe] += features_ms;
+  if (describe_elsewhere_ && !params_.loop_closure.enabled) {
+    LoopKeyframe kf;
+    kf.id = r.keyframe_id;
+    kf.T_world_kf = T_world_kf;
+    kf.frame = last_frame_;  // headers: the buffers are shared, never written again
+    kf.observation.camera = camera_;
+    kf.describe = true;
+    kf.close = false;
+    loop_out_.push_back(std::move(kf));
+    return;
+  }
   // Loop closure: a closure found now moves this frame too.
   if (params_.loop_closure.enabled) {
     double loop_ms = 0;
@@ -578,6 +596,13 @@ alg::FrameFeatures Frontend::addToKeyframeDatabase(uint32_t id, const alg::Prepr
   tracking_counters_.keyframe_features_ms +=
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return features;
+}
+
+void Frontend::addKeyframeFeatures(const KeyframeFeatures& f) {
+  tracking_counters_.keyframe_features_ms += f.ms;
+  const auto index = keyframe_index_.find(f.id);
+  if (index == keyframe_index_.end() || index->second >= trajectory_.size()) return;  // a map since started anew
+  keyframe_db_.add(f.id, f.features, trajectory_[index->second].T_world_cam);
 }
 
 bool Frontend::relocalize(const alg::PreprocessedFrame& pre, const alg::TrackingParams& tp, alg::IcpResult& verified,

@@ -64,6 +64,23 @@ LoopKeyframe withOwnImages(LoopKeyframe kf) {
   return kf;
 }
 
+KeyframeFeatures describeKeyframe(LoopKeyframe& kf, const alg::RelocalizationParams& params) {
+  const auto t0 = std::chrono::steady_clock::now();
+  KeyframeFeatures out;
+  out.id = kf.id;
+  kf.describe = false;
+  if (kf.frame.has_color && !kf.frame.intensity.empty()) {
+    cv::Mat gray;
+    kf.frame.intensity.convertTo(gray, CV_8U, 255.0);
+    kf.features = alg::extractFeatures(gray, kf.frame.depth_m, kf.observation.camera, params);
+    // The frontend's copy shares nothing with the loop closer's.
+    out.features = kf.features;
+    out.features.descriptors = kf.features.descriptors.clone();
+  }
+  out.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
 LoopCloser::LoopCloser(const LoopCloserParams& params, const alg::PinholeCamera& camera, ParallelFor parallel)
     : params_(params),
       camera_(camera),

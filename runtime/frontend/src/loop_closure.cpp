@@ -16,7 +16,6 @@ namespace hxmap::rt {
 void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const alg::PreprocessedFrame& previous_kf,
                                 const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
                                 const Eigen::Isometry3d& T_world_kf) {
-  keyframe_index_[id] = trajectory_.size() - 1;  // this frame's entry
   LoopKeyframe kf;
   kf.id = id;
   kf.epoch = loop_epoch_;
@@ -29,6 +28,7 @@ void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const 
     kf.photometric_scale_m = photometricScale();
   }
   kf.features = std::move(features);
+  kf.describe = describe_elsewhere_;
   kf.frame = last_frame_;  // headers: the buffers are shared, never written again
   kf.observation = {last_frame_.depth_m, last_frame_.rgb, last_frame_.levels[last_frame_.finest].confidence, camera_,
                     T_world_kf.cast<float>()};

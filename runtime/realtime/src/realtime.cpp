@@ -152,17 +152,18 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
       "({:.0f}%), {} shed, {} still queued or running at the end; {} slices, {} voxels written\n"
       "  keyframes to pose feedback: {} (ring full {} times); applied between frames: {} map patches, {} keyframe "
       "corrections\n",
-      ctx.sched.params().target_fps, ctx.sched.periodNs() * 1e-6, 3 + background + (loop.enabled() ? 1 : 0), background,
-      loop.enabled() ? ", loop closure" : "", c.frames_in, c.frames_processed, c.frames_dropped, c.deadline_misses,
-      stats.fps, stats.latency_p50_ms, stats.latency_p99_ms, stats.frontend_p50_ms, stats.frontend_p99_ms,
-      c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted, c.jobs_cancelled, c.slices_paused, made,
-      refine.submitted, refine.rejected, stats.refine_jobs_completed,
+      ctx.sched.params().target_fps, ctx.sched.periodNs() * 1e-6,
+      3 + background + (loop.enabled() || loop.describing() ? 1 : 0), background,
+      loop.enabled() ? ", loop closure" : (loop.describing() ? ", keyframe features" : ""), c.frames_in,
+      c.frames_processed, c.frames_dropped, c.deadline_misses, stats.fps, stats.latency_p50_ms, stats.latency_p99_ms,
+      stats.frontend_p50_ms, stats.frontend_p99_ms, c.jobs_submitted, c.jobs_completed, c.jobs_shed_unstarted,
+      c.jobs_cancelled, c.slices_paused, made, refine.submitted, refine.rejected, stats.refine_jobs_completed,
       refine.submitted
           ? 100.0 * static_cast<double>(stats.refine_jobs_completed) / static_cast<double>(refine.submitted)
           : 0.0,
       stats.refine_jobs_shed, refine.submitted - stats.refine_jobs_completed - stats.refine_jobs_shed,
-      stats.refine_slices, stats.refine_voxels_written, stats.keyframes_to_feedback,
-      stats.feedback_ring_full, stats.patches_applied, stats.corrections_applied);
+      stats.refine_slices, stats.refine_voxels_written, stats.keyframes_to_feedback, stats.feedback_ring_full,
+      stats.patches_applied, stats.corrections_applied);
   if (extra) stats.report += "  " + extra->reportLine() + "\n";
   if (stats.checkpoints > 0) {
     stats.report += fmt::format(
@@ -191,6 +192,13 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
         loop.slices.load(), loop.waits.load(), lc.shed, loop.forced.load(), front.loop_applied,
         front.loop_applied ? front.loop_apply_ms / static_cast<double>(front.loop_applied) : 0.0);
   }
+  if (loop.describing() && !loop.describe_ms.empty()) {
+    stats.report +=
+        fmt::format("  keyframe features (ORB, for relocalization{}): {} made {}, p50 {:.1f} ms, max {:.1f} ms\n",
+                    loop.enabled() ? " and loop closure" : "", loop.described.load(),
+                    ctx.serial ? "after their frames" : "on the background thread", percentileOf(loop.describe_ms, 0.5),
+                    percentileOf(loop.describe_ms, 1.0));
+  }
   if (const std::string st = source.statsText(); !st.empty()) stats.report += "  source: " + st + "\n";
   if (!sensor.error.empty()) stats.report += "  the source failed: " + sensor.error + "\n";
 }
@@ -207,7 +215,7 @@ RealtimeStats runRealtime(FrameSource& source, Frontend& frontend, const Realtim
   // The stages, from the last to the first (each knows where its output goes).
   RefinePool refine(ctx, workers, frontend.params().refine.implicit, nice);
   FeedbackStage feedback(ctx, frontend, sp.max_feedback_effort, nice, 3 + workers);
-  LoopStage loop(ctx, frontend.detachLoopCloser(), options.loop_parallel, nice, 3 + workers + 1);
+  LoopStage loop(ctx, frontend, options.loop_parallel, nice, 3 + workers + 1);
   stages::FrontendStage front(ctx, frontend, options, refine, feedback, loop);
   stages::SensorStage sensor(ctx, source, front.inbox());
 
@@ -248,7 +256,7 @@ RealtimeStats runSerial(FrameSource& source, Frontend& frontend, const RealtimeO
 
   RefinePool refine(ctx, workers, frontend.params().refine.implicit, 0);
   FeedbackStage feedback(ctx, frontend, options.scheduler.max_feedback_effort, 0, 3 + workers);
-  LoopStage loop(ctx, frontend.detachLoopCloser(), options.loop_parallel, 0, 3 + workers + 1);
+  LoopStage loop(ctx, frontend, options.loop_parallel, 0, 3 + workers + 1);
   stages::FrontendStage front(ctx, frontend, serial, refine, feedback, loop);
   stages::SensorStage sensor(ctx, source, front.inbox());
 

@@ -297,14 +297,47 @@ bool FeedbackStage::solveQueued() {
 
 // --------------------------------------------------------- loop closure
 
-LoopStage::LoopStage(RunContext& ctx, std::unique_ptr<LoopCloser> closer, const ParallelFor& parallel, int nice,
-                     int lane)
-    : ctx_(ctx), closer_(std::move(closer)), enabled_(closer_ != nullptr), nice_(nice), lane_(lane) {
+LoopStage::LoopStage(RunContext& ctx, Frontend& frontend, const ParallelFor& parallel, int nice, int lane)
+    : ctx_(ctx),
+      closer_(frontend.detachLoopCloser()),
+      enabled_(closer_ != nullptr),
+      describe_(frontend.params().relocalization.enabled),
+      relocalization_(frontend.params().relocalization),
+      nice_(nice),
+      lane_(lane) {
   if (closer_) closer_->setParallel(parallel ? parallel : ParallelFor(serialFor));
+  frontend.describeKeyframesElsewhere(describe_);
 }
 
 void LoopStage::start() {
-  if (closer_) thread_ = std::thread([this] { run(); });
+  if (closer_ || describe_) thread_ = std::thread([this] { run(); });
+}
+
+void LoopStage::take(LoopKeyframe kf, bool own_images) {
+  if (kf.describe) {
+    const int64_t t0 = ctx_.nowNs();
+    KeyframeFeatures f = describeKeyframe(kf, relocalization_);
+    describe_ms.push_back(f.ms);
+    described.fetch_add(1);
+    unsent_features_.push_back(std::move(f));
+    if (ctx_.trace) ctx_.trace->add({"keyframe features", "background", t0, ctx_.nowNs() - t0, lane_, -1, -1});
+    sendFeatures();
+  }
+  if (closer_ && kf.close) closer_->add(own_images ? withOwnImages(std::move(kf)) : std::move(kf));
+}
+
+void LoopStage::sendFeatures() {
+  while (!unsent_features_.empty() && features_.tryPush(std::move(unsent_features_.front()))) {
+    unsent_features_.pop_front();
+  }
+}
+
+bool LoopStage::takeFeatures(KeyframeFeatures& out) {
+  if (features_.tryPop(out)) return true;
+  if (!ctx_.serial || unsent_features_.empty()) return false;
+  out = std::move(unsent_features_.front());  // one thread: what the ring had no room for
+  unsent_features_.pop_front();
+  return true;
 }
 
 void LoopStage::join() {
@@ -331,8 +364,9 @@ void LoopStage::run() {
   LoopKeyframe kf;
   while (!ctx_.stopping.load()) {
     const uint32_t seen = bell_.read();
-    while (keyframes_.tryPop(kf)) closer_->add(withOwnImages(std::move(kf)));
-    if (!closer_->busy()) {
+    while (keyframes_.tryPop(kf)) take(std::move(kf));
+    sendFeatures();
+    if (!closer_ || !closer_->busy()) {
       bell_.wait(seen, ctx_.stopping);  // no polling
       continue;
     }
@@ -384,8 +418,8 @@ bool LoopStage::takeCorrection(LoopCorrection& out) {
 }
 
 void LoopStage::stepQueued() {
+  for (LoopKeyframe kf; keyframes_.tryPop(kf);) take(std::move(kf));
   if (!closer_) return;
-  for (LoopKeyframe kf; keyframes_.tryPop(kf);) closer_->add(withOwnImages(std::move(kf)));
   while (closer_->busy()) {
     const int64_t s0 = ctx_.nowNs();
     closer_->step();
@@ -396,11 +430,16 @@ void LoopStage::stepQueued() {
 }
 
 void LoopStage::finish(Frontend& frontend) {
-  if (!closer_) return;
+  frontend.describeKeyframesElsewhere(false);
   LoopKeyframe kf;
-  while (keyframes_.tryPop(kf)) closer_->add(std::move(kf));
-  for (LoopKeyframe& k : backlog_) closer_->add(std::move(k));
-  for (LoopKeyframe& k : frontend.takeLoopKeyframes()) closer_->add(std::move(k));
+  while (keyframes_.tryPop(kf)) take(std::move(kf), false);
+  for (LoopKeyframe& k : backlog_) take(std::move(k), false);
+  backlog_.clear();
+  for (LoopKeyframe& k : frontend.takeLoopKeyframes()) take(std::move(k), false);
+  for (KeyframeFeatures f; features_.tryPop(f);) frontend.addKeyframeFeatures(f);
+  for (const KeyframeFeatures& f : unsent_features_) frontend.addKeyframeFeatures(f);
+  unsent_features_.clear();
+  if (!closer_) return;
   LoopCorrection loop;
   while (corrections_.tryPop(loop)) frontend.applyLoopCorrection(loop);
   for (LoopCorrection& c : unsent_) frontend.applyLoopCorrection(c);
@@ -460,6 +499,7 @@ void FrontendStage::applyOutcomes() {
 
 // Between frames: what the background stages sent back.
 void FrontendStage::applyBackgroundResults() {
+  for (KeyframeFeatures f; loop_.takeFeatures(f);) frontend_.addKeyframeFeatures(f);
   applyOutcomes();
   for (KeyframeCorrection c; feedback_.takeCorrection(c);) corrections_applied += frontend_.applyKeyframeCorrection(c);
   for (LoopCorrection loop; loop_.takeCorrection(loop); loop = LoopCorrection{}) {  // the old map goes here

@@ -236,35 +236,51 @@ class FeedbackStage {
 /// Corrections with their rebuilt maps go back to the frontend.
 class LoopStage {
  public:
-  LoopStage(RunContext& ctx, std::unique_ptr<LoopCloser> closer, const ParallelFor& parallel, int nice, int lane);
+  /// Takes the frontend's loop closer (if any) and, with relocalization
+  /// on, the making of its keyframes' ORB features.
+  LoopStage(RunContext& ctx, Frontend& frontend, const ParallelFor& parallel, int nice, int lane);
   /// A loop closer came with the run (it stays so after finish).
   bool enabled() const { return enabled_; }
+  /// Keyframes' features are made here (relocalization on).
+  bool describing() const { return describe_; }
   void start();
   void join();
   /// Frontend thread.
   void offer(std::vector<LoopKeyframe> keyframes);
   /// Frontend thread.
   bool takeCorrection(LoopCorrection& out);
+  /// Frontend thread: a keyframe's features for its database.
+  bool takeFeatures(KeyframeFeatures& out);
   /// A serial run: the queued keyframes in, and every step they make.
   void stepQueued();
   /// The calling thread, after join: what was still queued or under way is
-  /// finished (the graph holds every keyframe and a last closure still
-  /// corrects the trajectory written); the closer goes back to `frontend`.
+  /// finished (the graph holds every keyframe, the keyframe database every
+  /// keyframe's features, and a last closure still corrects the trajectory
+  /// written); the closer goes back to `frontend`.
   void finish(Frontend& frontend);
 
-  std::atomic<uint64_t> slices{0}, forced{0}, waits{0};
+  std::atomic<uint64_t> slices{0}, forced{0}, waits{0}, described{0};
+  /// Milliseconds making keyframe features, each (loop thread until joined).
+  std::vector<double> describe_ms;
 
  private:
   void run();
+  /// A keyframe from the frontend: described if it has to be, then to the
+  /// closer (with images of its own while the frontend runs on).
+  void take(LoopKeyframe kf, bool own_images = true);
+  void sendFeatures();
 
   RunContext& ctx_;
   std::unique_ptr<LoopCloser> closer_;
-  bool enabled_;
+  bool enabled_, describe_;
+  alg::RelocalizationParams relocalization_;
   int nice_, lane_;
   SpscRing<LoopKeyframe> keyframes_{32};
   SpscRing<LoopCorrection> corrections_{4};
+  SpscRing<KeyframeFeatures> features_{32};
   std::deque<LoopKeyframe> backlog_;   ///< frontend thread
   std::deque<LoopCorrection> unsent_;  ///< loop thread until joined: corrections the ring had no room for
+  std::deque<KeyframeFeatures> unsent_features_;  ///< loop thread until joined
   Doorbell bell_;
   std::thread thread_;
 };

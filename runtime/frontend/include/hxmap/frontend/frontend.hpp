@@ -240,6 +240,15 @@ class Frontend {
   std::unique_ptr<LoopCloser> detachLoopCloser() { return std::move(loop_closer_); }
   void attachLoopCloser(std::unique_ptr<LoopCloser> closer) { loop_closer_ = std::move(closer); }
   std::vector<LoopKeyframe> takeLoopKeyframes() { return std::exchange(loop_out_, {}); }
+  /// Real time: a keyframe's ORB features are made on another thread
+  /// (describeKeyframe): each keyframe goes out through takeLoopKeyframes
+  /// with loop closure off too, and its features come back through
+  /// addKeyframeFeatures. Relocalization matches against them from then.
+  void describeKeyframesElsewhere(bool on) { describe_elsewhere_ = on; }
+  /// A keyframe's features made elsewhere, into the keyframe database at
+  /// the keyframe's pose as it is now (corrections applied since it was
+  /// made included).
+  void addKeyframeFeatures(const KeyframeFeatures& features);
   /// A loop closure's correction, between frames: every frame moves with
   /// its keyframe, later frames and the live pose with the newest; the
   /// correction's map replaces the map (refinement state and the quality
@@ -398,11 +407,13 @@ class Frontend {
   std::deque<uint32_t> reintegrate_queue_;
   FeedbackCounters feedback_counters_;
   // Loop closure: the closer (detached in real time), each keyframe's
-  // trajectory entry, keyframes queued for the closer's thread, the
+  // trajectory entry (with relocalization on), keyframes queued for the
+  // closer's thread (or only to be described), the
   // corrections applied, and the frontend's own counts.
   std::unique_ptr<LoopCloser> loop_closer_;
   std::map<uint32_t, size_t> keyframe_index_;
   std::vector<LoopKeyframe> loop_out_;
+  bool describe_elsewhere_ = false;
   uint64_t loop_epoch_ = 0;
   LoopClosureCounters loop_counters_;
   uint64_t map_epoch_ = 0;

@@ -83,6 +83,12 @@ struct LoopKeyframe {
   Eigen::Isometry3d T_depth_color = Eigen::Isometry3d::Identity();
   double photometric_scale_m = 0;
   alg::FrameFeatures features;
+  /// Real time: `features` are still to be made from `frame`, off the
+  /// frontend's thread (describeKeyframe), and go back to the frontend's
+  /// keyframe database as well.
+  bool describe = false;
+  /// For the loop closer (false: only to be described, loop closure off).
+  bool close = true;
   alg::PreprocessedFrame frame;       ///< for ICP against the keyframe map
   alg::DepthObservation observation;  ///< what the keyframe map fuses (pose: T_world_kf)
 };
@@ -94,6 +100,19 @@ struct LoopKeyframe {
 /// page faults are paid on the background thread, not by the frontend's
 /// next frame.
 LoopKeyframe withOwnImages(LoopKeyframe kf);
+
+/// A keyframe's ORB features made off the frontend's thread, for its
+/// keyframe database, and what making them cost.
+struct KeyframeFeatures {
+  uint32_t id = 0;
+  alg::FrameFeatures features;
+  double ms = 0;
+};
+
+/// Makes `kf.features` from its frame's intensity and depth (what the
+/// frontend's keyframe database would have made) and returns a copy of
+/// them for the frontend; clears `kf.describe`.
+KeyframeFeatures describeKeyframe(LoopKeyframe& kf, const alg::RelocalizationParams& params);
 
 /// An accepted closure, for the frontend to apply between frames.
 struct LoopCorrection {
