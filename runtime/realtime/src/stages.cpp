@@ -332,13 +332,7 @@ void LoopStage::sendFeatures() {
   }
 }
 
-bool LoopStage::takeFeatures(KeyframeFeatures& out) {
-  if (features_.tryPop(out)) return true;
-  if (!ctx_.serial || unsent_features_.empty()) return false;
-  out = std::move(unsent_features_.front());  // one thread: what the ring had no room for
-  unsent_features_.pop_front();
-  return true;
-}
+bool LoopStage::takeFeatures(KeyframeFeatures& out) { return takeSent(features_, unsent_features_, out); }
 
 void LoopStage::join() {
   bell_.ring();
@@ -409,11 +403,14 @@ void LoopStage::run() {
   }
 }
 
-bool LoopStage::takeCorrection(LoopCorrection& out) {
-  if (corrections_.tryPop(out)) return true;
-  if (!ctx_.serial || unsent_.empty()) return false;
-  out = std::move(unsent_.front());  // one thread: what the ring had no room for
-  unsent_.pop_front();
+bool LoopStage::takeCorrection(LoopCorrection& out) { return takeSent(corrections_, unsent_, out); }
+
+template <typename T>
+bool LoopStage::takeSent(SpscRing<T>& ring, std::deque<T>& unsent, T& out) {
+  if (ring.tryPop(out)) return true;
+  if (!ctx_.serial || unsent.empty()) return false;
+  out = std::move(unsent.front());  // one thread: what the ring had no room for
+  unsent.pop_front();
   return true;
 }
 

@@ -269,6 +269,10 @@ class LoopStage {
   /// closer (with images of its own while the frontend runs on).
   void take(LoopKeyframe kf, bool own_images = true);
   void sendFeatures();
+  /// The frontend's side of a ring from this stage: the next item, or in a
+  /// serial run what the ring had no room for.
+  template <typename T>
+  bool takeSent(SpscRing<T>& ring, std::deque<T>& unsent, T& out);
 
   RunContext& ctx_;
   std::unique_ptr<LoopCloser> closer_;
