@@ -397,19 +397,9 @@ void Frontend::makeKeyframe(const alg::IcpResult& icp, const Eigen::Isometry3d& 
     features = addToKeyframeDatabase(r.keyframe_id, last_frame_, T_world_kf);
   }
   r.stage_ms[kKeyframe] += features_ms;
-  if (describe_elsewhere_ && !params_.loop_closure.enabled) {
-    LoopKeyframe kf;
-    kf.id = r.keyframe_id;
-    kf.T_world_kf = T_world_kf;
-    kf.frame = last_frame_;  // headers: the buffers are shared, never written again
-    kf.observation.camera = camera_;
-    kf.describe = true;
-    kf.close = false;
-    loop_out_.push_back(std::move(kf));
-    return;
-  }
-  // Loop closure: a closure found now moves this frame too.
-  if (params_.loop_closure.enabled) {
+  // Loop closure (or, in real time, only the features): a closure found
+  // now moves this frame too.
+  if (params_.loop_closure.enabled || describe_elsewhere_) {
     double loop_ms = 0;
     {
       StageTimer t(loop_ms);

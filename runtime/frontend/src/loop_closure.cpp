@@ -29,6 +29,7 @@ void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const 
   }
   kf.features = std::move(features);
   kf.describe = describe_elsewhere_;
+  kf.close = params_.loop_closure.enabled;
   kf.frame = last_frame_;  // headers: the buffers are shared, never written again
   kf.observation = {last_frame_.depth_m, last_frame_.rgb, last_frame_.levels[last_frame_.finest].confidence, camera_,
                     T_world_kf.cast<float>()};

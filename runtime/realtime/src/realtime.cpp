@@ -195,7 +195,7 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   if (loop.describing() && !loop.describe_ms.empty()) {
     stats.report +=
         fmt::format("  keyframe features (ORB, for relocalization{}): {} made {}, p50 {:.1f} ms, max {:.1f} ms\n",
-                    loop.enabled() ? " and loop closure" : "", loop.described.load(),
+                    loop.enabled() ? " and loop closure" : "", loop.describe_ms.size(),
                     ctx.serial ? "after their frames" : "on the background thread", percentileOf(loop.describe_ms, 0.5),
                     percentileOf(loop.describe_ms, 1.0));
   }

@@ -318,7 +318,6 @@ void LoopStage::take(LoopKeyframe kf, bool own_images) {
     const int64_t t0 = ctx_.nowNs();
     KeyframeFeatures f = describeKeyframe(kf, relocalization_);
     describe_ms.push_back(f.ms);
-    described.fetch_add(1);
     unsent_features_.push_back(std::move(f));
     if (ctx_.trace) ctx_.trace->add({"keyframe features", "background", t0, ctx_.nowNs() - t0, lane_, -1, -1});
     sendFeatures();

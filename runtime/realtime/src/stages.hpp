@@ -259,7 +259,7 @@ class LoopStage {
   /// written); the closer goes back to `frontend`.
   void finish(Frontend& frontend);
 
-  std::atomic<uint64_t> slices{0}, forced{0}, waits{0}, described{0};
+  std::atomic<uint64_t> slices{0}, forced{0}, waits{0};
   /// Milliseconds making keyframe features, each (loop thread until joined).
   std::vector<double> describe_ms;
 

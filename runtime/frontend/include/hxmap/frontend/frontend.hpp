@@ -292,7 +292,7 @@ class Frontend {
                                            const Eigen::Isometry3d& T_world_cam);
   /// The keyframe (last_frame_ at T_world_kf) for the loop closer: run
   /// at once offline (a correction is applied before process() returns),
-  /// queued in real time.
+  /// queued in real time (with loop closure off, only to be described).
   void sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const alg::PreprocessedFrame& previous_kf,
                         const Eigen::Isometry3d& T_previous_kf, const Eigen::Isometry3d& T_previous_kf_color,
                         const Eigen::Isometry3d& T_world_kf);
