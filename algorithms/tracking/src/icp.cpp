@@ -8,7 +8,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
-#include "hxmap/core/simd.hpp"
+#include "hxmap/tracking/icp_kernels.hpp"
 #include "hxmap/tracking/normal_equations.hpp"
 
 namespace hxmap::alg {
@@ -20,7 +20,7 @@ struct Accumulation {
   double sq_sum = 0;
   double abs_sum = 0;  ///< |r| clipped at 3 Huber thresholds (a robust spread)
   int inliers = 0;
-  int consistent = 0;  ///< inliers within consistent_sigmas * sigma(z) of the model's plane
+  int consistent = 0;              ///< inliers within consistent_sigmas * sigma(z) of the model's plane
   double photometric_abs_sum = 0;  ///< the same for the photometric residuals
   int photometric_n = 0;
   void merge(const Accumulation& o) {
@@ -62,31 +62,6 @@ void accumulateBands(const ParallelFor& parallel, Accumulation& acc, const Body&
 
 // "37 %" (algorithms/ has no fmt: it builds with OpenCV and Eigen alone).
 std::string percent(double share) { return std::to_string(std::lround(100 * share)) + " %"; }
-
-// Points are processed kPointBatch at a time in three passes: the
-// arithmetic that every point needs (transform, projection) across the
-// batch, then the image reads and tests point by point (gathers, which do
-// not vectorize), packing the survivors, then their Jacobians across the
-// packed batch. DESIGN: one pass per point, with the arithmetic between
-// the reads, kept every lane but one idle; split, the two arithmetic passes
-// vectorize at the baseline instruction set (and twice as wide where the
-// CPU has AVX2).
-constexpr int kPointBatch = 128;
-
-// A 3x4 rigid transform as plain floats: R row-major, then t.
-struct RigidF {
-  float r[9], t[3];
-  explicit RigidF(const Eigen::Isometry3f& T) {
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) r[3 * i + j] = T.linear()(i, j);
-      t[i] = T.translation()(i);
-    }
-  }
-  /// Row i of R (a, b, c)^T, plus t_i when `translate`.
-  float row(int i, float a, float b, float c, bool translate = true) const {
-    return r[3 * i] * a + r[3 * i + 1] * b + r[3 * i + 2] * c + (translate ? t[i] : 0.0f);
-  }
-};
 
 // The frame pixels of the point-to-plane term, one array per coordinate:
 // camera-frame point, normal and confidence.
@@ -135,60 +110,6 @@ FrameBands gatherFrameBands(const FrameLevel& level, int stride, const ParallelF
   return out;
 }
 
-// Pass 1 of the point-to-plane term: points [0, m) in the world (x),
-// their normals rotated into it (n) and the model pixel each projects to
-// (u, v: truncated, the nearest; ok where inside the image and in front).
-struct GeometricProjection {
-  alignas(32) float x[3][kPointBatch], n[3][kPointBatch], u[kPointBatch], v[kPointBatch];
-  alignas(32) int ok[kPointBatch];
-};
-
-HXMAP_SIMD_CLONES void projectFramePoints(const float* px, const float* py, const float* pz, const float* nx,
-                                          const float* ny, const float* nz, int m, const RigidF& T,
-                                          const RigidF& T_ref, const float k[4], int mw, int mh,
-                                          GeometricProjection& out) {
-  const float wf = static_cast<float>(mw), hf = static_cast<float>(mh);
-  for (int i = 0; i < m; ++i) {
-    const float a = px[i], b = py[i], c = pz[i];
-    const float rx = T_ref.row(0, a, b, c), ry = T_ref.row(1, a, b, c), rz = T_ref.row(2, a, b, c);
-    const float inv_z = rz > 0.0f ? 1.0f / rz : 0.0f;
-    const float fu = k[0] * rx * inv_z + k[2] + 0.5f, fv = k[1] * ry * inv_z + k[3] + 0.5f;
-    out.u[i] = fu;
-    out.v[i] = fv;
-    out.ok[i] = rz > 0.0f && fu >= 0.0f && fu < wf && fv >= 0.0f && fv < hf;
-    for (int j = 0; j < 3; ++j) {
-      out.x[j][i] = T.row(j, a, b, c);
-      out.n[j][i] = T.row(j, nx[i], ny[i], nz[i], false);
-    }
-  }
-}
-
-// Pass 2 packs the associations (world point x, model point q and normal
-// n, weight so far, depth); pass 3 turns them into rows.
-struct GeometricRows {
-  alignas(32) float x[3][kPointBatch], q[3][kPointBatch], n[3][kPointBatch];
-  alignas(32) float w[kPointBatch], z[kPointBatch];
-  alignas(32) float J[6][kPointBatch], r[kPointBatch];
-};
-
-HXMAP_SIMD_CLONES void geometricRows(int k, float huber, GeometricRows& g) {
-  for (int i = 0; i < k; ++i) {
-    const float dx = g.x[0][i] - g.q[0][i], dy = g.x[1][i] - g.q[1][i], dz = g.x[2][i] - g.q[2][i];
-    const float nx = g.n[0][i], ny = g.n[1][i], nz = g.n[2][i];
-    const float r = nx * dx + ny * dy + nz * dz;
-    const float ar = std::abs(r);
-    g.w[i] *= ar <= huber ? 1.0f : huber / ar;
-    g.r[i] = r;
-    // d r / d xi = (x x n, n) for a left perturbation of T.
-    g.J[0][i] = g.x[1][i] * nz - g.x[2][i] * ny;
-    g.J[1][i] = g.x[2][i] * nx - g.x[0][i] * nz;
-    g.J[2][i] = g.x[0][i] * ny - g.x[1][i] * nx;
-    g.J[3][i] = nx;
-    g.J[4][i] = ny;
-    g.J[5][i] = nz;
-  }
-}
-
 void accumulate(const FramePoints& points, const ModelView& model, const Eigen::Isometry3f& T_world_cam,
                 const TrackingParams& params, Accumulation& acc) {
   const RigidF Tw(T_world_cam), T_ref(model.T_world_cam.inverse() * T_world_cam);
@@ -198,7 +119,8 @@ void accumulate(const FramePoints& points, const ModelView& model, const Eigen::
   const PinholeCamera& mc = model.camera;
   const float k[4] = {static_cast<float>(mc.fx), static_cast<float>(mc.fy), static_cast<float>(mc.cx),
                       static_cast<float>(mc.cy)};
-  const float sig_a = static_cast<float>(params.noise_sigma_a_m), sig_b = static_cast<float>(params.noise_sigma_b_per_m);
+  const float sig_a = static_cast<float>(params.noise_sigma_a_m),
+              sig_b = static_cast<float>(params.noise_sigma_b_per_m);
   const float k_sig = static_cast<float>(params.consistent_sigmas);
   const auto* normals = model.normal_world.ptr<cv::Vec3f>(0);  // continuous (created whole)
   const auto* vertices = model.vertex_world.ptr<cv::Vec3f>(0);
@@ -306,66 +228,6 @@ void gatherReference(const FrameLevel& ref, const cv::Mat& ref_conf, int conf_sh
       out.intensity.push_back(irow[u]);
       out.conf.push_back(conf);
     }
-  }
-}
-
-// Pass 1 of the photometric term: reference points [0, m) in the current
-// camera (p), 1/z, and their pixel position (u, v) where it is inside the
-// image (with a pixel to spare for interpolation) and in front (ok).
-struct PhotometricProjection {
-  alignas(32) float p[3][kPointBatch], inv_z[kPointBatch], u[kPointBatch], v[kPointBatch];
-  alignas(32) int ok[kPointBatch];
-};
-
-HXMAP_SIMD_CLONES void projectRefPoints(const float* x, const float* y, const float* z, int m, const RigidF& T,
-                                        const float k[4], float W, float H, PhotometricProjection& out) {
-  for (int i = 0; i < m; ++i) {
-    const float a = x[i], b = y[i], c = z[i];
-    const float px = T.row(0, a, b, c), py = T.row(1, a, b, c), pz = T.row(2, a, b, c);
-    const float inv_z = pz > 0.05f ? 1.0f / pz : 0.0f;
-    const float uu = k[0] * px * inv_z + k[2], vv = k[1] * py * inv_z + k[3];
-    out.p[0][i] = px;
-    out.p[1][i] = py;
-    out.p[2][i] = pz;
-    out.inv_z[i] = inv_z;
-    out.u[i] = uu;
-    out.v[i] = vv;
-    out.ok[i] = pz > 0.05f && uu >= 0.0f && vv >= 0.0f && uu < W && vv < H;
-  }
-}
-
-// Pass 2 packs the warped points that pass (intensity gradient g, residual
-// r, camera point p, 1/z, world point y, confidence); pass 3 turns them
-// into rows.
-struct PhotometricRows {
-  alignas(32) float gx[kPointBatch], gy[kPointBatch], r[kPointBatch], p[2][kPointBatch], inv_z[kPointBatch];
-  alignas(32) float y[3][kPointBatch], w[kPointBatch];
-  alignas(32) float J[6][kPointBatch], clipped[kPointBatch];
-};
-
-HXMAP_SIMD_CLONES void photometricRows(int n, const float R[9], float fx, float fy, float scale, float huber,
-                                       PhotometricRows& g) {
-  for (int i = 0; i < n; ++i) {
-    const float gx = g.gx[i], gy = g.gy[i], inv_z = g.inv_z[i];
-    // d r / d p_cur = g * d pi / d p.
-    const float d0 = gx * fx * inv_z, d1 = gy * fy * inv_z;
-    const float d2 = -(gx * fx * g.p[0][i] + gy * fy * g.p[1][i]) * inv_z * inv_z;
-    // p_cur = T^-1 y; left perturbation of T gives d r / d omega = (a x y)^T,
-    // d r / d v = -a^T with a = R (d r / d p_cur).
-    const float a0 = R[0] * d0 + R[1] * d1 + R[2] * d2;
-    const float a1 = R[3] * d0 + R[4] * d1 + R[5] * d2;
-    const float a2 = R[6] * d0 + R[7] * d1 + R[8] * d2;
-    const float y0 = g.y[0][i], y1 = g.y[1][i], y2 = g.y[2][i];
-    g.J[0][i] = scale * (a1 * y2 - a2 * y1);
-    g.J[1][i] = scale * (a2 * y0 - a0 * y2);
-    g.J[2][i] = scale * (a0 * y1 - a1 * y0);
-    g.J[3][i] = -scale * a0;
-    g.J[4][i] = -scale * a1;
-    g.J[5][i] = -scale * a2;
-    const float ar = std::abs(g.r[i]);
-    g.w[i] *= ar <= huber ? 1.0f : huber / ar;
-    g.clipped[i] = std::min(ar, 3.0f * huber);
-    g.r[i] *= scale;
   }
 }
 
