@@ -39,6 +39,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <limits>
 #include <map>
 #include <string>
@@ -207,11 +208,36 @@ struct DepthL1 {
   }
 };
 
+// A job's CPU time per phase (this thread's CPU clock, so load elsewhere on
+// the machine does not count).
+struct PhaseClock final : alg::RefineProbe {
+  std::array<double, alg::kRefinePhases> ms{};
+  alg::RefinePhase current = alg::RefinePhase::kOutside;
+  double since = now();
+  static double now() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+  }
+  void enter(alg::RefinePhase phase) override {
+    const double t = now();
+    ms[static_cast<size_t>(current)] += t - since;
+    current = phase, since = t;
+  }
+  double inside() const {
+    double sum = 0;
+    for (size_t i = 1; i < ms.size(); ++i) sum += ms[i];
+    return sum;
+  }
+};
+
 struct HybridRun {
   alg::TriangleMesh tsdf_mesh, hybrid_mesh, detail_mesh;
   size_t details = 0;
   std::vector<Eigen::AlignedBox3f> boxes;
-  std::vector<double> job_ms, iteration_ms, setup_ms, memory_mb, iterations, rays, free_rays;
+  std::vector<double> job_ms, iteration_ms, setup_ms, memory_mb, iterations, rays, free_rays, job_cpu_ms;
+  std::array<double, alg::kRefinePhases> phase_ms{};  ///< all jobs
+  double all_iterations = 0;
   DepthL1 depth;
   size_t jobs = 0, converged = 0, out_of_time = 0;
   double tsdf_s = 0, hybrid_s = 0;
@@ -241,7 +267,12 @@ HybridRun mapTwice(const std::vector<RgbdFrame>& frames, const alg::PinholeCamer
     fe.process(f);
     for (const rt::RefineJob& job : fe.takeRefineJobs()) {
       const std::vector<float> before = roiDepthErrors(fe.map(), job);
-      const rt::RefineOutcome o = rt::runRefineJob(job, params.refine.implicit);
+      PhaseClock clock;
+      const rt::RefineOutcome o =
+          rt::runRefineJob(job, params.refine.implicit, rt::RefineBudget::kIterationsAndTime, &clock);
+      for (size_t i = 0; i < clock.ms.size(); ++i) out.phase_ms[i] += clock.ms[i];
+      out.job_cpu_ms.push_back(clock.inside());
+      out.all_iterations += o.result.stats.iterations;
       fe.applyRefinement(o);
       out.depth.add(before, roiDepthErrors(fe.map(), job));
       const auto& st = o.result.stats;
@@ -286,6 +317,16 @@ void printJobs(const HybridRun& r) {
       r.memory_mb.empty() ? 0.0 : *std::max_element(r.memory_mb.begin(), r.memory_mb.end()));
   std::printf("  rays per job median: %.0f landing in the ROI, %.0f crossing it to a surface beyond\n", median(r.rays),
               median(r.free_rays));
+  double all = 0;
+  for (size_t i = 1; i < r.phase_ms.size(); ++i) all += r.phase_ms[i];
+  std::printf("  CPU per job median %.0f ms (after setup); where it goes, share and ms per iteration:",
+              median(r.job_cpu_ms));
+  for (size_t i = 1; i < r.phase_ms.size(); ++i) {
+    std::printf(" %s %.0f%% %.2f", alg::refinePhaseName(static_cast<alg::RefinePhase>(i)),
+                all > 0 ? 100.0 * r.phase_ms[i] / all : 0.0,
+                r.all_iterations > 0 ? r.phase_ms[i] / r.all_iterations : 0.0);
+  }
+  std::printf("\n");
   std::printf(
       "  map rendering vs input depth inside each job's ROI, before -> after its write-back, where both render: "
       "median %.2f -> %.2f mm, mean %.2f -> %.2f mm; no surface rendered for %.1f%% -> %.1f%% of the pixels; "

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "hxmap/implicit/activation.hpp"
+
 namespace hxmap::alg {
 
 namespace {
@@ -24,9 +26,6 @@ struct SplitMix {
   float uniform(float lo, float hi) { return lo + (hi - lo) * static_cast<float>(next() >> 40) * 0x1.0p-24f; }
 };
 
-inline float softplus1(float x) { return x > 20.0f ? x : std::log1p(std::exp(x)); }
-inline float sigmoid1(float x) { return 1.0f / (1.0f + std::exp(-x)); }
-
 }  // namespace
 
 void denseForward(const float* W, const float* b, int out, int in, const Eigen::MatrixXf& X, Eigen::MatrixXf& Y) {
@@ -42,11 +41,16 @@ void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, co
   if (dX) dX->noalias() = ConstMapMat(W, out, in).transpose() * dY;
 }
 
-Eigen::MatrixXf softplus(const Eigen::MatrixXf& A) { return A.unaryExpr([](float x) { return softplus1(x); }); }
+namespace {
 
-Eigen::MatrixXf softplusBackward(const Eigen::MatrixXf& A, const Eigen::MatrixXf& dZ) {
-  return dZ.cwiseProduct(A.unaryExpr([](float x) { return sigmoid1(x); }));
+/// Y = softplus(A) and S = softplus'(A).
+void activate(const Eigen::MatrixXf& A, Eigen::MatrixXf& Y, Eigen::MatrixXf& S) {
+  Y.resize(A.rows(), A.cols());
+  S.resize(A.rows(), A.cols());
+  softplusAndSlope(A.data(), Y.data(), S.data(), static_cast<size_t>(A.size()));
 }
+
+}  // namespace
 
 Corners locate(const GridLayout& grid, const Eigen::Vector3f& p) {
   Corners c;
@@ -164,11 +168,19 @@ void NeuralField::encode(const Eigen::Vector3f& p, float* out) const {
   const Eigen::Vector3f q = (p - center_).cwiseProduct(inv_half_extent_);
   out[0] = q.x(), out[1] = q.y(), out[2] = q.z();
   float* o = out + 3;
-  float scale = static_cast<float>(M_PI);
-  for (int f = 0; f < frequencies_; ++f, scale *= 2.0f) {
+  // The first octave from sin/cos, each next one by the double-angle rule.
+  float sn[3], cs[3];
+  for (int a = 0; a < 3; ++a) {
+    sn[a] = std::sin(static_cast<float>(M_PI) * q[a]);
+    cs[a] = std::cos(static_cast<float>(M_PI) * q[a]);
+  }
+  for (int f = 0; f < frequencies_; ++f) {
     for (int a = 0; a < 3; ++a) {
-      *o++ = std::sin(scale * q[a]);
-      *o++ = std::cos(scale * q[a]);
+      *o++ = sn[a];
+      *o++ = cs[a];
+      const float s2 = 2.0f * sn[a] * cs[a];
+      cs[a] = (cs[a] - sn[a]) * (cs[a] + sn[a]);
+      sn[a] = s2;
     }
   }
 }
@@ -203,9 +215,10 @@ void NeuralField::forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m
     if (keep) c.coarse[static_cast<size_t>(j)] = cc, c.fine[static_cast<size_t>(j)] = fc;
   }
   denseForward(params_.data() + wf_, params_.data() + bf_, fuse_, in0, c.X, c.A0);
-  c.Zin.topRows(fuse_) = softplus(c.A0);
+  activate(c.A0, c.Z0, c.S0);
+  c.Zin.topRows(fuse_) = c.Z0;
   denseForward(params_.data() + w1_, params_.data() + b1_, hidden_, fuse_ + enc, c.Zin, c.A1);
-  c.H = softplus(c.A1);
+  activate(c.A1, c.H, c.S1);
   Eigen::MatrixXf O;
   denseForward(params_.data() + w2_, params_.data() + b2_, 4, hidden_, c.H, O);
   sdf_m = mu_ * (c.X.row(0) + c.X.row(kCoarseChannels) + O.row(0)).transpose();
@@ -222,9 +235,9 @@ void NeuralField::backward(const Cache& c, const Eigen::VectorXf& d_sdf, const E
   if (color) dO.bottomRows(3) = d_rgb;
   Eigen::MatrixXf dH, dZin, dX;
   denseBackward(params_.data() + w2_, 4, hidden_, c.H, dO, grad.data() + w2_, grad.data() + b2_, &dH);
-  const Eigen::MatrixXf dA1 = softplusBackward(c.A1, dH);
+  const Eigen::MatrixXf dA1 = dH.cwiseProduct(c.S1);
   denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, dA1, grad.data() + w1_, grad.data() + b1_, &dZin);
-  const Eigen::MatrixXf dA0 = softplusBackward(c.A0, dZin.topRows(fuse_));
+  const Eigen::MatrixXf dA0 = dZin.topRows(fuse_).cwiseProduct(c.S0);
   denseBackward(params_.data() + wf_, fuse_, in0, c.X, dA0, grad.data() + wf_, grad.data() + bf_, &dX);
   dX.row(0) += mu_ * d_sdf.transpose();
   dX.row(kCoarseChannels) += mu_ * d_sdf.transpose();

@@ -266,13 +266,17 @@ bool RoiRefiner::iterate(int n) {
   const size_t coarse_nodes = field_.coarseGrid().nodeCount();
   const int cc = NeuralField::kCoarseChannels;
   if (!finished_ && !prepared_) {  // a preparation step takes the place of this call's iterations
+    enterPhase(probe_, RefinePhase::kPrepare);
     prepareStep();
+    enterPhase(probe_, RefinePhase::kOutside);
     return !finished_;
   }
   for (int it = 0; it < n && !finished_; ++it) {
-    const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_);
+    enterPhase(probe_, RefinePhase::kSample);
+    const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_, probe_);
     touched_.clear();
-    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_, &rendering_);
+    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_, &rendering_, probe_);
+    enterPhase(probe_, RefinePhase::kBookkeeping);
     markSeen(batch);
     for (Cell& c : cells_) {
       c.field_abs *= kFieldErrorDecay;
@@ -297,6 +301,7 @@ bool RoiRefiner::iterate(int n) {
       P[i] -= lr * (m_[i] / c1) / (std::sqrt(v_[i] / c2) + kEps);
       grad_[i] = 0.0f;
     };
+    enterPhase(probe_, RefinePhase::kOptimizer);
     const auto lr_grid = static_cast<float>(params_.learning_rate_grid);
     const auto lr_mlp = static_cast<float>(params_.learning_rate_mlp);
     for (int32_t node : touched_) {  // lazy: only the grid nodes this batch touched
@@ -309,6 +314,7 @@ bool RoiRefiner::iterate(int n) {
       }
     }
     for (size_t i = grid_end; i < P.size(); ++i) adam(i, lr_mlp);
+    enterPhase(probe_, RefinePhase::kBookkeeping);
 
     const double prev = smoothed_loss_.empty() ? L.total : smoothed_loss_.back();
     smoothed_loss_.push_back(smoothed_loss_.empty() ? L.total : 0.9 * prev + 0.1 * L.total);
@@ -320,12 +326,15 @@ bool RoiRefiner::iterate(int n) {
     }
     if (t >= params_.iterations) finished_ = true;
   }
+  enterPhase(probe_, RefinePhase::kOutside);
   return !finished_;
 }
 
 RefineResult RoiRefiner::result() {
+  enterPhase(probe_, RefinePhase::kPrepare);
   while (!rays_.empty() && !prepareStep()) {
   }
+  enterPhase(probe_, RefinePhase::kWriteBack);
   RefineResult out;
   out.stats = stats_;
   std::vector<float> rendered;
@@ -439,6 +448,7 @@ RefineResult RoiRefiner::result() {
   out.stats.patch_entries = out.patch.entries.size();
   out.detail = makeDetail(share);
   out.stats.detail_nodes = out.detail ? out.detail->detailed_nodes : 0;
+  enterPhase(probe_, RefinePhase::kOutside);
   return out;
 }
 

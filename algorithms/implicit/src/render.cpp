@@ -49,6 +49,32 @@ void stratified(float a, float b, int n, bool jitter, uint64_t& rng, float* out)
 
 }  // namespace
 
+const char* refinePhaseName(RefinePhase phase) {
+  switch (phase) {
+    case RefinePhase::kOutside:
+      return "outside";
+    case RefinePhase::kPrepare:
+      return "prepare";
+    case RefinePhase::kTrace:
+      return "trace";
+    case RefinePhase::kSample:
+      return "sample";
+    case RefinePhase::kForward:
+      return "forward";
+    case RefinePhase::kRender:
+      return "render+loss";
+    case RefinePhase::kBackward:
+      return "backward";
+    case RefinePhase::kOptimizer:
+      return "optimizer";
+    case RefinePhase::kBookkeeping:
+      return "bookkeeping";
+    case RefinePhase::kWriteBack:
+      return "write-back";
+  }
+  return "?";
+}
+
 std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframes, const Eigen::AlignedBox3f& box,
                                      const ImplicitParams& params,
                                      const std::function<bool(const TrainingRay&)>& keep_free) {
@@ -188,7 +214,7 @@ std::vector<float> sphereTrace(const NeuralField& field, const std::vector<Train
 }
 
 RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>& rays, std::vector<int32_t> which,
-                        const ImplicitParams& params, bool jitter, uint64_t& rng) {
+                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe) {
   RenderBatch b;
   if (rays.empty()) return b;
   if (which.empty()) {
@@ -215,7 +241,9 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
   const int N = std::max(4, params.samples_per_ray);
   b.samples = N;
   b.t.resize(b.rays.size() * static_cast<size_t>(N));
+  enterPhase(probe, RefinePhase::kTrace);
   const std::vector<float> hit = sphereTrace(field, rays, b.rays, params.sphere_trace_steps);
+  enterPhase(probe, RefinePhase::kSample);
   const float band = static_cast<float>(params.sample_band_voxels) * field.voxelSize();
   std::vector<size_t> with_hit;
   for (size_t i = 0; i < b.rays.size(); ++i) {
@@ -262,7 +290,7 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
 
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
                        const ImplicitParams& params, std::vector<float>* grad, std::vector<int32_t>* touched,
-                       Rendering* rendering) {
+                       Rendering* rendering, RefineProbe* probe) {
   LossTerms L;
   const size_t R = batch.rays.size(), P = batch.reg_points.size();
   const int N = batch.samples;
@@ -289,7 +317,9 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
   NeuralField::Cache cache;
   Eigen::VectorXf s;
   Eigen::Matrix3Xf rgb;
+  enterPhase(probe, RefinePhase::kForward);
   field.forward(pts, s, &rgb, grad ? &cache : nullptr);
+  enterPhase(probe, RefinePhase::kRender);
 
   Eigen::VectorXf ds = Eigen::VectorXf::Zero(total);
   Eigen::Matrix3Xf drgb = Eigen::Matrix3Xf::Zero(3, total);
@@ -406,7 +436,10 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
   L.normal = n_normal ? sum_normal / n_normal : 0.0;
   L.total = params.lambda_photo * L.photo + params.lambda_depth * L.depth + params.lambda_normal * L.normal +
             params.lambda_eikonal * L.eikonal;
-  if (grad) field.backward(cache, ds, drgb, *grad, touched);
+  if (grad) {
+    enterPhase(probe, RefinePhase::kBackward);
+    field.backward(cache, ds, drgb, *grad, touched);
+  }
   return L;
 }
 

@@ -5,7 +5,8 @@
 
 namespace hxmap::rt {
 
-RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params, RefineBudget budget) {
+RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params, RefineBudget budget,
+                           alg::RefineProbe* probe) {
   using Clock = std::chrono::steady_clock;
   auto ms = [](Clock::time_point a, Clock::time_point b) {
     return std::chrono::duration<double, std::milli>(b - a).count();
@@ -15,6 +16,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   out.map_epoch = job.map_epoch;
   const auto t0 = Clock::now();
   alg::RoiRefiner refiner(*job.snapshot, job.roi.box_world, job.keyframes, params);
+  refiner.setProbe(probe);
   const auto t1 = Clock::now();
   while (refiner.iterate(std::max(1, params.slice_iterations))) {
     if (budget == RefineBudget::kIterationsAndTime && ms(t1, Clock::now()) >= params.time_budget_ms) {

@@ -5,8 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <random>
 
+#include "hxmap/implicit/activation.hpp"
 #include "hxmap/implicit/refine.hpp"
 #include "hxmap/tsdf/integrate.hpp"
 #include "hxmap/tsdf/patch.hpp"
@@ -112,14 +114,21 @@ TEST(ImplicitLayers, DenseLayerMatchesFiniteDifferences) {
   for (int i = 0; i < X.size(); ++i) X.data()[i] = u(rng);
   for (int i = 0; i < Rw.size(); ++i) Rw.data()[i] = u(rng);
   // L = sum(Rw .* softplus(W X + b))
-  auto loss = [&](const std::vector<float>& Wv, const std::vector<float>& bv, const Eigen::MatrixXf& Xv) {
-    Eigen::MatrixXf A;
-    denseForward(Wv.data(), bv.data(), out, in, Xv, A);
-    return static_cast<double>(softplus(A).cwiseProduct(Rw).sum());
+  auto activate = [](const Eigen::MatrixXf& A, Eigen::MatrixXf& Y, Eigen::MatrixXf& S) {
+    Y.resize(A.rows(), A.cols());
+    S.resize(A.rows(), A.cols());
+    softplusAndSlope(A.data(), Y.data(), S.data(), static_cast<size_t>(A.size()));
   };
-  Eigen::MatrixXf A;
+  auto loss = [&](const std::vector<float>& Wv, const std::vector<float>& bv, const Eigen::MatrixXf& Xv) {
+    Eigen::MatrixXf A, Y, S;
+    denseForward(Wv.data(), bv.data(), out, in, Xv, A);
+    activate(A, Y, S);
+    return static_cast<double>(Y.cwiseProduct(Rw).sum());
+  };
+  Eigen::MatrixXf A, Y, S;
   denseForward(W.data(), b.data(), out, in, X, A);
-  const Eigen::MatrixXf dA = softplusBackward(A, Rw);
+  activate(A, Y, S);
+  const Eigen::MatrixXf dA = Rw.cwiseProduct(S);
   std::vector<float> dW(out * in, 0.0f), db(out, 0.0f);
   Eigen::MatrixXf dX;
   denseBackward(W.data(), out, in, X, dA, dW.data(), db.data(), &dX);
@@ -139,6 +148,51 @@ TEST(ImplicitLayers, DenseLayerMatchesFiniteDifferences) {
     Xp.data()[i] += eps, Xm.data()[i] -= eps;
     EXPECT_NEAR(dX.data()[i], (loss(W, b, Xp) - loss(W, b, Xm)) / (2 * eps), 2e-3) << "X " << i;
   }
+}
+
+// The activation's polynomials against the definitions in double precision,
+// over the whole range a pre-activation can take, through the vectorized
+// loop (every lane, and the remainder) and the scalar building blocks.
+TEST(ImplicitLayers, SoftplusAndSlopeAgreeWithTheirDefinitions) {
+  std::vector<float> a;
+  for (float x = -100.0f; x <= 100.0f; x += 0.00731f) a.push_back(x);
+  for (float x : {0.0f, -0.0f, 1e-30f, -1e-30f, 1e-7f, -1e-7f, 20.0f, -20.0f, 86.0f, -86.0f, 87.5f, -87.5f, 1e6f, -1e6f,
+                  3.4e38f, -3.4e38f}) {
+    a.push_back(x);
+  }
+  std::vector<float> sp(a.size()), slope(a.size());
+  softplusAndSlope(a.data(), sp.data(), slope.data(), a.size());
+  double worst_sp = 0, worst_slope = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double x = a[i];
+    const double want_sp = std::max(x, 0.0) + std::log1p(std::exp(-std::abs(x)));
+    const double want_slope = 1.0 / (1.0 + std::exp(-x));
+    ASSERT_TRUE(std::isfinite(sp[i]) && std::isfinite(slope[i])) << x;
+    // Relative, except below e^-86 (~4.5e-38), where the exponential is
+    // clamped (a normal float's floor, for speed).
+    const double floor = 4.5e-38;  // e^-86 = 4.47e-38
+    auto error = [floor](double got, double want) {
+      const double excess = std::abs(got - want) - floor;
+      return excess > 0.0 ? excess / want : 0.0;
+    };
+    const double e_sp = error(sp[i], want_sp), e_slope = error(slope[i], want_slope);
+    worst_sp = std::max(worst_sp, e_sp);
+    worst_slope = std::max(worst_slope, e_slope);
+    EXPECT_LT(e_sp, 4e-7) << "softplus at " << x << ": " << sp[i] << " against " << want_sp;
+    EXPECT_LT(e_slope, 4e-7) << "slope at " << x << ": " << slope[i] << " against " << want_slope;
+  }
+  char worst[64];
+  std::snprintf(worst, sizeof worst, "%.2e / %.2e", worst_sp, worst_slope);
+  RecordProperty("worst_relative_error_softplus_slope", worst);
+  for (float x = -86.0f; x <= 0.0f; x += 0.0013f) {
+    const double want = std::exp(static_cast<double>(x));
+    EXPECT_LT(std::abs(expNonPositive(x) - want) / want, 3e-7) << x;
+  }
+  for (float y = 0.0f; y <= 1.0f; y += 1.7e-5f) {
+    const double want = std::log1p(static_cast<double>(y));
+    EXPECT_LE(std::abs(log1pUnit(y) - want), 3e-7 * std::max(want, 1e-30)) << y;
+  }
+  EXPECT_EQ(log1pUnit(1e-30f), 1e-30f);
 }
 
 TEST(ImplicitLayers, TrilinearGridIsExactOnLinearFunctionsAndClampsOutside) {

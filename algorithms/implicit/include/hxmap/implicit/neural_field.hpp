@@ -38,10 +38,6 @@ void denseForward(const float* W, const float* b, int out, int in, const Eigen::
 /// Accumulates dW and db, and sets dX (when not null).
 void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
                    float* db, Eigen::MatrixXf* dX);
-/// softplus(x) = log(1 + e^x), elementwise; its derivative is sigmoid(x).
-Eigen::MatrixXf softplus(const Eigen::MatrixXf& A);
-/// dA = dZ * sigmoid(A).
-Eigen::MatrixXf softplusBackward(const Eigen::MatrixXf& A, const Eigen::MatrixXf& dZ);
 
 /// A regular grid of nodes with `channels` values each, trilinearly
 /// interpolated. Node (i, j, k) sits at origin + (i, j, k) * cell.
@@ -109,11 +105,12 @@ class NeuralField {
   /// What backward needs from forward.
   struct Cache {
     std::vector<Corners> coarse, fine;
-    Eigen::MatrixXf X;    ///< grid features (inputWidth x n)
-    Eigen::MatrixXf A0;   ///< fuse pre-activation
-    Eigen::MatrixXf Zin;  ///< [z; gamma(x)]
-    Eigen::MatrixXf A1;   ///< hidden pre-activation
-    Eigen::MatrixXf H;
+    Eigen::MatrixXf X;       ///< grid features (inputWidth x n)
+    Eigen::MatrixXf A0, Z0;  ///< fuse pre-activation, z = softplus(A0)
+    Eigen::MatrixXf S0;      ///< softplus'(A0)
+    Eigen::MatrixXf Zin;     ///< [z; gamma(x)]
+    Eigen::MatrixXf A1;      ///< hidden pre-activation
+    Eigen::MatrixXf H, S1;   ///< softplus(A1), softplus'(A1)
   };
 
   /// s (meters) and c (rgb in [0, 1], unclamped) at each column of `points`.

@@ -66,6 +66,9 @@ class RoiRefiner {
   /// bias), each about as costly as an iteration.
   bool iterate(int n);
   bool finished() const { return finished_; }
+  /// Told of every phase the job enters (null: none); the job leaves each
+  /// call with RefinePhase::kOutside.
+  void setProbe(RefineProbe* probe) { probe_ = probe; }
   int iterations() const { return stats_.iterations; }
   const LossTerms& lastLoss() const { return stats_.last; }
   const NeuralField& field() const { return field_; }
@@ -114,6 +117,7 @@ class RoiRefiner {
   static constexpr float kSeenTransmittance = 0.1f;
 
   ImplicitParams params_;
+  RefineProbe* probe_ = nullptr;
   NeuralField field_;
   std::vector<TrainingRay> rays_;
   std::vector<float> snapshot_weight_;           ///< per voxel of the box

@@ -38,6 +38,33 @@
 
 namespace hxmap::alg {
 
+/// The phases of a refinement job, for measuring where its time goes.
+enum class RefinePhase {
+  kOutside,      ///< not in the job (between slices)
+  kPrepare,      ///< rendering the TSDF to measure its error and bias
+  kTrace,        ///< sphere tracing the field along the batch's rays
+  kSample,       ///< placing the samples and regularizer points
+  kForward,      ///< the field at every sample
+  kRender,       ///< compositing and the loss, with its gradient
+  kBackward,     ///< the field's backward pass
+  kOptimizer,    ///< Adam
+  kBookkeeping,  ///< what was seen, the cells' errors, convergence
+  kWriteBack,    ///< result(): the patch, sigma_Neural, the detail layer
+};
+inline constexpr int kRefinePhases = 10;
+const char* refinePhaseName(RefinePhase phase);
+
+/// Told each time a job moves to another phase (algorithms keep no clocks:
+/// the caller's probe timestamps). Null everywhere by default.
+class RefineProbe {
+ public:
+  virtual ~RefineProbe() = default;
+  virtual void enter(RefinePhase phase) = 0;
+};
+inline void enterPhase(RefineProbe* probe, RefinePhase phase) {
+  if (probe) probe->enter(phase);
+}
+
 /// A keyframe's images at the resolution refinement uses.
 struct KeyframeImages {
   uint32_t id = 0;
@@ -90,7 +117,7 @@ struct RenderBatch {
 /// random), traced and sampled; `jitter` stratifies the samples randomly
 /// (training), else at stratum centers (evaluation). `rng` advances.
 RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>& rays, std::vector<int32_t> which,
-                        const ImplicitParams& params, bool jitter, uint64_t& rng);
+                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe = nullptr);
 
 struct LossTerms {
   double photo = 0, depth = 0, normal = 0, eikonal = 0;
@@ -109,6 +136,7 @@ struct Rendering {
 /// `touched`. `rendering` (optional) receives depths and transmittances.
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
                        const ImplicitParams& params, std::vector<float>* grad = nullptr,
-                       std::vector<int32_t>* touched = nullptr, Rendering* rendering = nullptr);
+                       std::vector<int32_t>* touched = nullptr, Rendering* rendering = nullptr,
+                       RefineProbe* probe = nullptr);
 
 }  // namespace hxmap::alg

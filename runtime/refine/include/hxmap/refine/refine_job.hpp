@@ -51,7 +51,8 @@ enum class RefineBudget { kIterationsAndTime, kIterationsOnly };
 /// Runs a job to its end on the calling thread (offline runs and
 /// benchmarks; the real-time runtime runs jobs in slices under its
 /// scheduler instead).
+/// `probe` (optional) is told the job's phases (bench_refine's breakdown).
 RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& params,
-                           RefineBudget budget = RefineBudget::kIterationsAndTime);
+                           RefineBudget budget = RefineBudget::kIterationsAndTime, alg::RefineProbe* probe = nullptr);
 
 }  // namespace hxmap::rt
