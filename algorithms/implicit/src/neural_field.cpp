@@ -35,10 +35,10 @@ void denseForward(const float* W, const float* b, int out, int in, const Eigen::
 }
 
 void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
-                   float* db, Eigen::MatrixXf* dX) {
+                   float* db, Eigen::MatrixXf* dX, int dx_rows) {
   MapMat(dW, out, in).noalias() += dY * X.transpose();
   MapVec(db, out) += dY.rowwise().sum();
-  if (dX) dX->noalias() = ConstMapMat(W, out, in).transpose() * dY;
+  if (dX) dX->noalias() = ConstMapMat(W, out, in).leftCols(dx_rows < 0 ? in : dx_rows).transpose() * dY;
 }
 
 namespace {
@@ -236,8 +236,10 @@ void NeuralField::backward(const Cache& c, const Eigen::VectorXf& d_sdf, const E
   Eigen::MatrixXf dH, dZin, dX;
   denseBackward(params_.data() + w2_, 4, hidden_, c.H, dO, grad.data() + w2_, grad.data() + b2_, &dH);
   const Eigen::MatrixXf dA1 = dH.cwiseProduct(c.S1);
-  denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, dA1, grad.data() + w1_, grad.data() + b1_, &dZin);
-  const Eigen::MatrixXf dA0 = dZin.topRows(fuse_).cwiseProduct(c.S0);
+  // The encoding has no parameters: only z's rows of the input gradient.
+  denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, dA1, grad.data() + w1_, grad.data() + b1_, &dZin,
+                fuse_);
+  const Eigen::MatrixXf dA0 = dZin.cwiseProduct(c.S0);
   denseBackward(params_.data() + wf_, fuse_, in0, c.X, dA0, grad.data() + wf_, grad.data() + bf_, &dX);
   dX.row(0) += mu_ * d_sdf.transpose();
   dX.row(kCoarseChannels) += mu_ * d_sdf.transpose();

@@ -235,6 +235,11 @@ void visit(HxmapConfig& c, Visitor& v) {
   v.integer("slice_iterations", m.slice_iterations, 1, 1 << 16);
   v.number("convergence_rel", m.convergence_rel, 0, 1);
   v.integer("patience", m.patience, 1, 1 << 16);
+  {  // initial weights and ray sampling: another seed shows a job's run-to-run spread
+    int seed = static_cast<int>(m.seed);
+    v.integer("seed", seed, 0, 1 << 30);
+    m.seed = static_cast<uint64_t>(seed);
+  }
   v.number("writeback_weight_ratio", m.writeback_weight_ratio, 0, kBig);
   v.integer("bias_rays", m.bias_rays, 1, 1 << 20);
   v.boolean("completion", m.completion);

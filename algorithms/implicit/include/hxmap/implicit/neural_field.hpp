@@ -35,9 +35,10 @@ namespace hxmap::alg {
 /// Dense layer Y = W X + b on a batch (one column per point); W is
 /// out x in, column-major, in a flat parameter vector.
 void denseForward(const float* W, const float* b, int out, int in, const Eigen::MatrixXf& X, Eigen::MatrixXf& Y);
-/// Accumulates dW and db, and sets dX (when not null).
+/// Accumulates dW and db, and sets dX (when not null) to the gradient of
+/// the first dx_rows inputs (all when negative).
 void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
-                   float* db, Eigen::MatrixXf* dX);
+                   float* db, Eigen::MatrixXf* dX, int dx_rows = -1);
 
 /// A regular grid of nodes with `channels` values each, trilinearly
 /// interpolated. Node (i, j, k) sits at origin + (i, j, k) * cell.
