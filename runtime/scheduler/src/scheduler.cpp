@@ -18,6 +18,8 @@ void CostModel::add(double ms) {
   }
 }
 
+void CostModel::lowerEwma(double ms) { ewma_ = std::min(ewma_, ms); }
+
 double CostModel::recentMax() const {
   double m = 0.0;
   for (double x : recent_) m = std::max(m, x);
@@ -132,7 +134,15 @@ double Scheduler::recentMaxSince(const JobKindCost& k, int64_t since_ns) {
 double Scheduler::predictSliceLocked(const JobTicket& job, int64_t now_ns) const {
   const int64_t horizon = static_cast<int64_t>(std::max(1, params_.recent_frames)) * period_ns_;
   for (const auto& k : job_costs_) {
-    if (k.kind == job.kind && !k.model.empty()) return std::max({k.model.ewma(), recentMaxSince(k, now_ns - horizon), 0.0});
+    if (k.kind != job.kind || k.model.empty()) continue;
+    const double ewma = std::max(k.model.ewma(), 0.0);
+    if (k.newest_ns >= now_ns - horizon) return std::max(ewma, recentMaxSince(k, now_ns - horizon));
+    // Stale: see JobKindCost.
+    const double median = k.model.percentile(0.5);
+    const double usual = k.model.count() >= kEvidenceSlices ? median : std::min(job.slice_estimate_ms, median);
+    if (ewma <= usual) return ewma;
+    const double horizons = static_cast<double>(now_ns - horizon - k.newest_ns) / static_cast<double>(horizon);
+    return usual + (ewma - usual) * std::exp2(-horizons);
   }
   return job.slice_estimate_ms;
 }
@@ -177,14 +187,18 @@ void Scheduler::sliceFinished(const JobTicket& job, double ms) {
     job_costs_.push_back({job.kind, CostModel(params_.ewma_alpha, static_cast<size_t>(std::max(1, params_.recent_frames))), {}});
     it = job_costs_.end() - 1;
   }
-  it->model.add(ms);
   // Timed by the slice's start (its admission); older than the horizon out.
   const int64_t t = std::max<int64_t>(job.last_admitted_ns, 0);
   const int64_t horizon = static_cast<int64_t>(std::max(1, params_.recent_frames)) * period_ns_;
+  // A stale kind's EWMA goes on from what the slice was admitted with (its
+  // decayed value), not from the value that held it back.
+  if (!it->model.empty() && it->newest_ns < t - horizon) it->model.lowerEwma(predictSliceLocked(job, t));
+  it->model.add(ms);
   it->recent.erase(std::remove_if(it->recent.begin(), it->recent.end(),
                                   [&](const auto& e) { return e.first < t - horizon; }),
                    it->recent.end());
   it->recent.emplace_back(t, ms);
+  it->newest_ns = std::max(it->newest_ns, t);
   // The frontend reads the feedback cost once per frame: published lock-free.
   if (job.kind == "feedback") feedback_full_ms_.store(predictSliceLocked(job, t), std::memory_order_relaxed);
 }

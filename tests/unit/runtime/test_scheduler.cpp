@@ -169,6 +169,70 @@ TEST(Scheduler, OneSlowSliceDoesNotStarveItsKindForever) {
   EXPECT_LE(first_run, p.recent_frames + 1);
 }
 
+// 30 FPS, frames of 11 ms: admitted 12 ms after a frame's arrival, a slice
+// has about 20 ms of slack. The first slice of kind "setup" measures 35 ms.
+// Returns the periods after it until the kind's next admission (-1: none
+// within `periods`), and the admissions in all.
+struct SetupProbe {
+  int first_after = -1;
+  int admitted = 0;
+};
+SetupProbe runAfterASlowFirstSlice(const SchedulerParams& p, double every_slice_ms, int periods) {
+  Scheduler s(p);
+  const int64_t ms = 1'000'000, period = s.periodNs();
+  int64_t t = 0;
+  auto frame = [&] {
+    s.frameArrived(t);
+    s.frameStarted(t, t);
+    s.frameFinished(t + 11 * ms, {2, 5, 2, 2});
+  };
+  for (int i = 0; i < 4; ++i, t += period) frame();
+  JobTicket job{"setup", 10.0};  // what the job declares: 10 ms
+  s.jobSubmitted(job, t);
+  frame();
+  EXPECT_EQ(s.admitSlice(job, t + 12 * ms), Verdict::kRun);
+  s.sliceFinished(job, 35.0);
+  t += period;
+  SetupProbe out;
+  out.admitted = 1;
+  for (int i = 0; i < periods; ++i, t += period) {
+    frame();
+    JobTicket next{"setup", 10.0};
+    s.jobSubmitted(next, t);
+    if (s.admitSlice(next, t + 12 * ms) == Verdict::kRun) {
+      s.sliceFinished(next, every_slice_ms);
+      ++out.admitted;
+      if (out.first_after < 0) out.first_after = i;
+    }
+  }
+  EXPECT_EQ(s.counters().deadline_misses, 0u);
+  return out;
+}
+
+TEST(Scheduler, AKindWhoseFirstSliceWasAnOutlierRunsAgain) {
+  // The first ROI job's setup in a fresh process: 35 ms, where later ones
+  // take 3. Without a fresher sample the kind's EWMA stays at 35 ms, above
+  // any slack at 30 FPS, and no later job of the kind would ever start.
+  SchedulerParams p;
+  p.target_fps = 30;
+  const SetupProbe r = runAfterASlowFirstSlice(p, 3.0, 10 * p.recent_frames);
+  ASSERT_GE(r.first_after, 0) << "starved: never admitted again";
+  EXPECT_GE(r.first_after, p.recent_frames) << "held back while the slow slice is recent";
+  // The gap to the declared 10 ms halves every horizon: 10 + 25 / 2^h fits
+  // 20.3 ms of slack after h = 1.3 horizons of staleness.
+  EXPECT_LE(r.first_after, 3 * p.recent_frames);
+  EXPECT_GT(r.admitted, 5 * p.recent_frames) << "then every period's job starts";
+}
+
+TEST(Scheduler, AKindThatReallyCostsMoreThanTheSlackIsTriedAgainOnlyTwice) {
+  SchedulerParams p;
+  p.target_fps = 30;
+  const SetupProbe r = runAfterASlowFirstSlice(p, 35.0, 40 * p.recent_frames);
+  EXPECT_GE(r.first_after, p.recent_frames);
+  // Three slices of 35 ms outvote the declared 10 ms: the kind's median.
+  EXPECT_EQ(r.admitted, 3);
+}
+
 TEST(Scheduler, AFrameWaitingToStartTakesItsPredictedCostFromTheSlack) {
   Scheduler s;  // 25 FPS, 1 ms margin, 3 warm-up frames
   JobTicket job{"refine", 20.0};

@@ -61,6 +61,8 @@ class CostModel {
   bool empty() const { return count_ == 0; }
   size_t count() const { return count_; }
   double ewma() const { return ewma_; }
+  /// The EWMA becomes min(EWMA, ms) (a prediction that decayed with age).
+  void lowerEwma(double ms);
   double recentMax() const;
   /// What the scheduler plans with: max(EWMA, recent maximum).
   double predict() const { return std::max(ewma_, recentMax()); }
@@ -159,10 +161,28 @@ class Scheduler {
   /// refinement job of the run was cancelled (quality room, 150 frames: 10
   /// iteration slices in all, the last at 0.5 s of 6 s). With time, the
   /// outlier ages out and the EWMA, which weighs it by alpha, plans again.
+  ///
+  /// DESIGN: a kind with no slice within the horizon is planned with an
+  /// EWMA that nothing updates any more (a slice is only measured when one
+  /// is admitted). When that EWMA is above what the kind's own slices
+  /// usually cost (the median of its last recent_frames slices; with fewer
+  /// than kEvidenceSlices slices, the lower of that and what its jobs
+  /// declare), it decays towards it, halving the gap every horizon. Without this, a kind whose first slice was an
+  /// outlier never ran again: the first ROI job's setup, in a process that
+  /// had not run one yet, took 17-30 ms of CPU where later setups of the
+  /// same size took 2-7 ms, and every later job of the run was shed before
+  /// it started (whole fr1/xyz at 30 FPS: 39 made, 1 completed). A kind that
+  /// really costs more than the slack is admitted again once the gap has
+  /// shrunk into the slack, its slow slice measured anew, and then held
+  /// back for a horizon again, until its own slices outvote the jobs'
+  /// declaration (kEvidenceSlices slices: then its median is what it
+  /// usually costs).
+  static constexpr size_t kEvidenceSlices = 3;
   struct JobKindCost {
     std::string kind;
     CostModel model;
     std::vector<std::pair<int64_t, double>> recent;  ///< (slice start, ms), within the horizon
+    int64_t newest_ns = 0;                           ///< start of the newest slice measured
   };
   /// Predicted slice cost of a kind at now_ns (the job's estimate when unmeasured); job_mutex_ held.
   double predictSliceLocked(const JobTicket& job, int64_t now_ns) const;
