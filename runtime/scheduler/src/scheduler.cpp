@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -54,6 +55,8 @@ Scheduler::Scheduler(const SchedulerParams& params)
     : params_(params),
       period_ns_(static_cast<int64_t>(std::llround(1e9 / std::max(0.1, params.target_fps)))),
       margin_ns_(msToNs(params.margin_ms)),
+      lanes_(params.background_lanes > 0 ? params.background_lanes
+                                         : std::max(1, static_cast<int>(std::thread::hardware_concurrency()))),
       feedback_effort_(params.max_feedback_effort) {
   const size_t window = static_cast<size_t>(std::max(1, params.recent_frames));
   for (auto& s : stages_) s = CostModel(params.ewma_alpha, window);
@@ -156,8 +159,9 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
   if (predicted_ms) *predicted_ms = predicted;
   // No prediction of the frontend yet (the first frames): no slack to give.
   const bool warm = frames_processed_.load(std::memory_order_acquire) >= static_cast<uint64_t>(params_.warmup_frames);
-  if (warm && predicted <= slackMs(now_ns)) {
+  if (warm && predicted <= slackMs(now_ns) && takeLane()) {
     job.last_admitted_ns = now_ns;
+    job.in_slice = true;
     slices_admitted_.fetch_add(1, std::memory_order_relaxed);
     return Verdict::kRun;
   }
@@ -180,7 +184,19 @@ Verdict Scheduler::admitSlice(JobTicket& job, int64_t now_ns, double* predicted_
   return Verdict::kWait;
 }
 
-void Scheduler::sliceFinished(const JobTicket& job, double ms) {
+bool Scheduler::takeLane() {
+  int running = running_.load(std::memory_order_relaxed);
+  while (running < lanes_) {
+    if (running_.compare_exchange_weak(running, running + 1, std::memory_order_acq_rel)) return true;
+  }
+  return false;
+}
+
+void Scheduler::sliceFinished(JobTicket& job, double ms) {
+  if (job.in_slice) {
+    job.in_slice = false;
+    running_.fetch_sub(1, std::memory_order_acq_rel);
+  }
   std::lock_guard<std::mutex> lock(job_mutex_);
   auto it = std::find_if(job_costs_.begin(), job_costs_.end(), [&](const JobKindCost& k) { return k.kind == job.kind; });
   if (it == job_costs_.end()) {

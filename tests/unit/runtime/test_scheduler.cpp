@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "hxmap/scheduler/replay.hpp"
@@ -231,6 +232,39 @@ TEST(Scheduler, AKindThatReallyCostsMoreThanTheSlackIsTriedAgainOnlyTwice) {
   EXPECT_GE(r.first_after, p.recent_frames);
   // Three slices of 35 ms outvote the declared 10 ms: the kind's median.
   EXPECT_EQ(r.admitted, 3);
+}
+
+TEST(Scheduler, NoMoreSlicesRunAtOnceThanThereAreLanes) {
+  // Plenty of slack: what limits three background threads is the two
+  // cores the slack is on.
+  SchedulerParams p;
+  p.background_lanes = 2;
+  Scheduler s(p);
+  const int64_t ms = 1'000'000;
+  for (int i = 0; i < 3; ++i) {
+    s.frameArrived(i * 40 * ms);
+    s.frameStarted(i * 40 * ms, i * 40 * ms);
+    s.frameFinished(i * 40 * ms + 5 * ms, {1, 2, 1, 1});
+  }
+  const int64_t t = 86 * ms;  // 33 ms of slack
+  JobTicket a{"refine", 3.0}, b{"refine", 3.0}, c{"loop", 3.0};
+  for (JobTicket* j : {&a, &b, &c}) s.jobSubmitted(*j, t);
+  EXPECT_EQ(s.admitSlice(a, t), Verdict::kRun);
+  EXPECT_EQ(s.admitSlice(b, t), Verdict::kRun);
+  EXPECT_EQ(s.runningSlices(), 2);
+  EXPECT_EQ(s.admitSlice(c, t), Verdict::kWait) << "both lanes are taken";
+  s.sliceFinished(a, 3.0);
+  EXPECT_EQ(s.runningSlices(), 1);
+  EXPECT_EQ(s.admitSlice(c, t + 3 * ms), Verdict::kRun) << "a lane is free again";
+  // A slice run without admission (one that could not be given up) is
+  // measured, and frees no lane it never held.
+  JobTicket forced{"loop", 3.0};
+  s.sliceFinished(forced, 4.0);
+  EXPECT_EQ(s.runningSlices(), 2);
+  s.sliceFinished(b, 3.0);
+  s.sliceFinished(c, 3.0);
+  EXPECT_EQ(s.runningSlices(), 0);
+  EXPECT_EQ(Scheduler().backgroundLanes(), std::max(1, static_cast<int>(std::thread::hardware_concurrency())));
 }
 
 TEST(Scheduler, AFrameWaitingToStartTakesItsPredictedCostFromTheSlack) {

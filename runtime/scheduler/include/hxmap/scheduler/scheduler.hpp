@@ -51,6 +51,7 @@ struct SchedulerParams {
   int shed_after_periods = 8;   ///< a job without slack for this many periods is shed (started: + recent_frames)
   int max_feedback_effort = 3;  ///< pose feedback effort levels above 0 (off)
   int warmup_frames = 3;        ///< no background slice before this many frames have a measured cost
+  int background_lanes = 0;     ///< background slices that may run at once (0: one per core)
 };
 
 /// Cost of one stage or job kind: EWMA, recent maximum, percentiles.
@@ -89,6 +90,7 @@ struct JobTicket {
   double slice_estimate_ms = 5;  ///< the job's own estimate until a slice has been measured
   int64_t submitted_ns = 0;
   int64_t last_admitted_ns = -1;  ///< -1: never started
+  bool in_slice = false;          ///< admitted, its slice not yet finished (holds a lane)
   bool started() const { return last_admitted_ns >= 0; }
 };
 
@@ -127,8 +129,10 @@ class Scheduler {
   /// May `job` run one slice now? `predicted_ms` receives the slice cost the
   /// decision assumed.
   Verdict admitSlice(JobTicket& job, int64_t now_ns, double* predicted_ms = nullptr);
-  /// A slice of `job` ran for `ms`.
-  void sliceFinished(const JobTicket& job, double ms);
+  /// A slice of `job` ran for `ms` (its lane is free again; a slice run
+  /// without admission, e.g. one that could not be given up, is measured
+  /// all the same).
+  void sliceFinished(JobTicket& job, double ms);
   void jobFinished(const JobTicket& job);
 
   /// Changes whenever a frame finishes; background threads that were told kWait block
@@ -142,6 +146,10 @@ class Scheduler {
     epoch_.fetch_add(1, std::memory_order_release);
     epoch_.notify_all();
   }
+
+  /// Background slices running now (admitted, not yet finished).
+  int runningSlices() const { return running_.load(std::memory_order_relaxed); }
+  int backgroundLanes() const { return lanes_; }
 
   /// Predicted slack of the current period at `now_ns`, ms (may be negative).
   double slackMs(int64_t now_ns) const;
@@ -187,10 +195,17 @@ class Scheduler {
   /// Predicted slice cost of a kind at now_ns (the job's estimate when unmeasured); job_mutex_ held.
   double predictSliceLocked(const JobTicket& job, int64_t now_ns) const;
   static double recentMaxSince(const JobKindCost& k, int64_t since_ns);
+  /// Takes a background lane if one is free.
+  bool takeLane();
 
   SchedulerParams params_;
   int64_t period_ns_;
   int64_t margin_ns_;
+  /// DESIGN: the slack is time the frontend leaves free on every core, so
+  /// one background slice per core fits it; a slice beyond that shares a
+  /// core with another and runs past its predicted end.
+  int lanes_;
+  std::atomic<int> running_{0};
   // Frontend-owned.
   std::array<CostModel, static_cast<size_t>(FrontendStage::kCount)> stages_;
   int64_t current_arrival_ns_ = 0;
