@@ -43,14 +43,19 @@ class BurnLoad : public rt::BackgroundLoad {
     sched.jobSubmitted(job, now_ns());
     volatile double sink = 0;
     while (!stopping.load()) {
+      if (done == slices_per_job_) {  // before asking: an admitted slice holds a lane until it finishes
+        sched.jobFinished(job);
+        job = rt::JobTicket{"burn", slice_ms_};
+        done = 0;
+        sched.jobSubmitted(job, now_ns());
+      }
       const uint64_t epoch = sched.frameEpoch();
       const rt::Verdict v = sched.admitSlice(job, now_ns());
       if (v == rt::Verdict::kWait) {
         if (!stopping.load()) sched.waitForFrameEnd(epoch);  // slack changes when a frame ends
         continue;
       }
-      if (v == rt::Verdict::kShed || done == slices_per_job_) {
-        if (v != rt::Verdict::kShed) sched.jobFinished(job);
+      if (v == rt::Verdict::kShed) {
         job = rt::JobTicket{"burn", slice_ms_};
         done = 0;
         sched.jobSubmitted(job, now_ns());

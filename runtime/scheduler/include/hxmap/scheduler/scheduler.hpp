@@ -175,16 +175,13 @@ class Scheduler {
   /// is admitted). When that EWMA is above what the kind's own slices
   /// usually cost (the median of its last recent_frames slices; with fewer
   /// than kEvidenceSlices slices, the lower of that and what its jobs
-  /// declare), it decays towards it, halving the gap every horizon. Without this, a kind whose first slice was an
-  /// outlier never ran again: the first ROI job's setup, in a process that
-  /// had not run one yet, took 17-30 ms of CPU where later setups of the
-  /// same size took 2-7 ms, and every later job of the run was shed before
-  /// it started (whole fr1/xyz at 30 FPS: 39 made, 1 completed). A kind that
-  /// really costs more than the slack is admitted again once the gap has
-  /// shrunk into the slack, its slow slice measured anew, and then held
-  /// back for a horizon again, until its own slices outvote the jobs'
-  /// declaration (kEvidenceSlices slices: then its median is what it
-  /// usually costs).
+  /// declare), it decays towards it, halving the gap every horizon.
+  /// Without this, a kind whose first slice was an outlier never ran again: the first ROI job's setup, in a process
+  /// that had not run one yet, took 17-30 ms of CPU where later setups of the same size took 2-7 ms, and every later
+  /// job of the run was shed before it started (whole fr1/xyz at 30 FPS: 39 made, 1 completed). A kind that really
+  /// costs more than the slack is admitted again once the gap has shrunk into the slack, its slow slice measured anew,
+  /// and then held back for a horizon again, until its own slices outvote the jobs' declaration (kEvidenceSlices
+  /// slices: then its median is what it usually costs).
   static constexpr size_t kEvidenceSlices = 3;
   struct JobKindCost {
     std::string kind;
