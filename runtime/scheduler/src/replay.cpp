@@ -4,13 +4,10 @@
 #include <cmath>
 #include <limits>
 
+#include "hxmap/core/stamp.hpp"
 #include "hxmap/ring/latest_slot.hpp"
 
 namespace hxmap::rt {
-
-namespace {
-int64_t msToNs(double ms) { return static_cast<int64_t>(std::llround(ms * 1e6)); }
-}  // namespace
 
 ReplayResult replay(const std::vector<ReplayFrame>& frames, const std::vector<ReplayJob>& jobs,
                     const SchedulerParams& params) {

@@ -6,6 +6,8 @@
 
 #include <fmt/format.h>
 
+#include "hxmap/core/stamp.hpp"
+
 namespace hxmap::rt {
 
 void CostModel::add(double ms) {
@@ -47,7 +49,6 @@ const char* frontendStageName(FrontendStage s) {
 }
 
 namespace {
-int64_t msToNs(double ms) { return static_cast<int64_t>(std::llround(ms * 1e6)); }
 double nsToMs(int64_t ns) { return static_cast<double>(ns) * 1e-6; }
 }  // namespace
 
