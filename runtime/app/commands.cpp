@@ -421,11 +421,6 @@ Status resumeSavedMap(const RunOptions& o, RunPipeline& p) {
                                              loaded->skipped_keyframes)
                                : std::string());
   spdlog::info("{}; relocalizing in it before fusing", p.map_text);
-  if (p.params.loop_closure.enabled) {
-    spdlog::info(
-        "loop closure is off for a run that continues a saved map (a closure rebuilds the map from "
-        "this run's keyframes only)");
-  }
   p.frontend->resumeMap(std::move(loaded->map), std::move(loaded->keyframes));
   return Status::ok();
 }

@@ -229,6 +229,61 @@ TEST_F(LoopClosureRun, UnderAMemoryBudgetTheKeyframeMapKeepsToItsShareAndTheLoop
   EXPECT_LT(on.ate_m, 0.4 * off.ate_m);
 }
 
+TEST_F(LoopClosureRun, ARunThatContinuesASavedMapClosesItsLoopOnTheSavedKeyframesAndMovesNoneOfThem) {
+  // The first 60 frames mapped without drift and kept (as --save-map keeps
+  // them: the map and the keyframe database); the rest of the lap and the
+  // way back to the start continued from them with drift injected.
+  const size_t cut = 60;
+  FrontendParams p;
+  p.quality_enabled = false;
+  p.refine.enabled = false;
+  p.feedback.enabled = false;
+  Frontend first(cam_, p);
+  first.setInitialPose(loop_truth_.front().T_world_cam);
+  for (size_t i = 0; i < cut; ++i) first.process(loop_frames_[i]);
+  const alg::KeyframeDatabase& saved = first.keyframeDatabase();
+  ASSERT_GE(saved.size(), 3u);
+  const std::vector<RgbdFrame> rest(loop_frames_.begin() + static_cast<std::ptrdiff_t>(cut), loop_frames_.end());
+  const Trajectory truth(loop_truth_.begin() + static_cast<std::ptrdiff_t>(cut), loop_truth_.end());
+  struct Resumed {
+    double ate_m = 0;
+    LoopClosureCounters counters;
+    double saved_moved_m = 0;  ///< the most a saved keyframe moved
+    size_t blocks = 0;
+  };
+  auto resume = [&](bool loop_closure) {
+    FrontendParams q = p;
+    q.loop_closure.enabled = loop_closure;
+    q.odometry_bias << 0.0, 0.1 * M_PI / 180.0, 0.0, 0.002, 0.0, 0.0;  // per frame
+    Frontend fe(cam_, q);
+    fe.resumeMap(first.map(), saved);
+    for (const RgbdFrame& f : rest) fe.process(f);
+    Resumed r{alg::computeAte(fe.trajectory(), truth).rmse_m, fe.loopClosureCounters(), 0, fe.map().blockCount()};
+    if (const LoopCloser* closer = fe.loopCloser()) {
+      for (const auto& k : saved.keyframes()) {
+        EXPECT_TRUE(closer->graph().hasNode(k.id));
+        if (!closer->graph().hasNode(k.id)) continue;
+        const Eigen::Isometry3d& now = closer->graph().node(k.id);
+        r.saved_moved_m = std::max(r.saved_moved_m, (now.translation() - k.T_world_cam.translation()).norm());
+      }
+    }
+    return r;
+  };
+  const Resumed off = resume(false), on = resume(true);
+  std::printf(
+      "continued after frame %zu: ATE %.2f -> %.2f cm with closure; %lu closures, %lu keyframes re-fused, "
+      "saved keyframes moved up to %.2g m\n",
+      cut, 100 * off.ate_m, 100 * on.ate_m, static_cast<unsigned long>(on.counters.closures),
+      static_cast<unsigned long>(on.counters.keyframes_rebuilt), on.saved_moved_m);
+  ASSERT_GT(off.ate_m, 0.03) << "the bias drifts the continued run";
+  EXPECT_GE(on.counters.closures, 1u);
+  EXPECT_EQ(on.counters.applied, on.counters.closures);
+  EXPECT_LT(on.ate_m, 0.5 * off.ate_m);
+  EXPECT_EQ(on.saved_moved_m, 0.0) << "a saved keyframe moved";
+  // The rebuilt map is the saved one with this run's keyframes fused onto it.
+  EXPECT_GE(on.blocks, first.map().blockCount());
+}
+
 TEST_F(LoopClosureRun, ChangesNothingWithoutDriftOrOnTheOrbit) {
   const Run clean = run(loop_frames_, loop_truth_, true, 0.0);
   std::printf("no drift: ATE %.2f cm, %lu closures, %lu consistent, %lu beyond drift, %lu jumps, %lu unverified\n",

@@ -148,7 +148,7 @@ PoseGraphReport PoseGraph::optimize(uint32_t fixed, int max_iterations) {
   for (auto& [id, b] : blocks) {
     if (!problem.HasParameterBlock(b.q)) continue;
     problem.SetManifold(b.q, &quaternion_manifold);
-    if (id == fixed) {
+    if (id == fixed || isFixed(id)) {
       problem.SetParameterBlockConstant(b.q);
       problem.SetParameterBlockConstant(b.t);
     }

@@ -82,9 +82,16 @@ void Frontend::resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes) {
   for (const auto& k : keyframe_db_.keyframes()) keyframe_id_base_ = std::max(keyframe_id_base_, k.id + 1);
   initialized_ = true;  // lost until relocalized: no model, no previous frame
   resuming_ = true;
-  // DESIGN: a closure rebuilds the map from the keyframes this run kept,
-  // which would drop the saved map's blocks.
-  loop_closer_.reset();
+  // DESIGN: loop closure goes on in the saved map: its keyframes are fixed
+  // nodes of the graph (this run does not move what the saved map holds),
+  // and a closure fuses this run's keyframes onto a copy of the saved map
+  // at their new poses. Under a memory budget it stays off: that copy
+  // would be held in memory beside the map.
+  if (loop_closer_ && budgetBytes() > 0) {
+    spdlog::info("loop closure is off for a run that continues a saved map under a memory budget");
+    loop_closer_.reset();
+  }
+  if (loop_closer_) loop_closer_->seed(map_, keyframe_db_);
 }
 
 size_t Frontend::budgetBytes() const { return static_cast<size_t>(params_.tsdf.max_resident_mib * (1 << 20)); }

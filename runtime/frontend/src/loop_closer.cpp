@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <tuple>
+#include <utility>
 
 #include <spdlog/spdlog.h>
 
@@ -137,6 +138,17 @@ bool LoopCloser::shed() {
   return true;
 }
 
+void LoopCloser::seed(const alg::TsdfMap& map, const alg::KeyframeDatabase& keyframes) {
+  base_ = std::make_shared<const alg::TsdfMap>(map);
+  map_ = map;
+  database_ = keyframes;
+  for (const alg::KeyframeDatabase::Keyframe& k : keyframes.keyframes()) {
+    graph_.setNode(k.id, k.T_world_cam);
+    graph_.fixNode(k.id);
+  }
+  fix_next_ = true;
+}
+
 Eigen::Isometry3d LoopCloser::uncheckedOdometry(const LoopKeyframe& kf) {
   ++counters_.odometry_unchecked;
   return kf.T_world_previous.inverse() * kf.T_world_kf;
@@ -169,6 +181,7 @@ void LoopCloser::begin(bool shed) {
   const uint32_t id = kf.id;
   const bool first = graph_.nodes().empty();
   graph_.setNode(id, kf.T_world_kf);
+  if (std::exchange(fix_next_, false)) graph_.fixNode(id);
   if (!first && id > 0 && kf.previous && graph_.hasNode(id - 1)) {
     graph_.addFactor({id - 1, id, shed ? uncheckedOdometry(kf) : odometry(kf),
                       alg::isotropicInformation(lp.odometry_sigma_deg * M_PI / 180.0, lp.odometry_sigma_m), false});
@@ -383,7 +396,11 @@ void LoopCloser::solve() {
     auto obs = observations_.find(node);
     if (obs != observations_.end()) obs->second.T_world_cam = T.cast<float>();
   }
-  rebuilt_.emplace(params_.tsdf);
+  if (base_) {
+    rebuilt_.emplace(*base_);
+  } else {
+    rebuilt_.emplace(params_.tsdf);
+  }
   rebuild_ids_.clear();
   for (const auto& [node, obs] : observations_) rebuild_ids_.push_back(node);
   rebuild_next_ = 0;

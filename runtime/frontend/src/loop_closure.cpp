@@ -21,7 +21,7 @@ void Frontend::sendToLoopCloser(uint32_t id, alg::FrameFeatures features, const 
   kf.id = id;
   kf.epoch = loop_epoch_;
   kf.T_world_kf = T_world_kf;
-  if (id > 0) {
+  if (id > keyframe_id_base_) {  // not this run's first keyframe
     kf.previous = previous_kf;  // headers
     kf.T_world_previous = T_previous_kf;
     kf.T_world_previous_color = T_previous_kf_color;

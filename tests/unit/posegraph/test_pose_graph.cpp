@@ -109,6 +109,30 @@ TEST(PoseGraph, AWrongClosureBesideRightOnesIsRefusedAndLeavesTheGraphAsItWas) {
   EXPECT_LT(rmsError(l), 0.6 * rms_before) << "before: " << rms_before;
 }
 
+TEST(PoseGraph, FixedNodesStayWhereTheyAreAndTheOthersTakeTheCorrection) {
+  // The first 20 keyframes as a saved map holds them (fixed); the drift of
+  // the rest is undone by a closure on keyframe 0.
+  Loop l = drifted(60, 2);
+  std::vector<Eigen::Isometry3d> saved;
+  for (uint32_t i = 0; i < 20; ++i) {
+    l.graph.fixNode(i);
+    saved.push_back(l.graph.node(i));
+  }
+  EXPECT_TRUE(l.graph.isFixed(19));
+  EXPECT_FALSE(l.graph.isFixed(20));
+  const double end_before = error(l, 59);
+  ASSERT_GT(end_before, 0.10);
+  const Matrix6d loop_info = isotropicInformation(0.2 * M_PI / 180.0, 0.003);
+  const PoseGraphReport r =
+      l.graph.addLoop({59, 0, l.truth[59].inverse() * l.truth[0], loop_info, true}, 0, std::sqrt(22.46));
+  ASSERT_TRUE(r.failure.empty()) << r.failure;
+  EXPECT_FALSE(r.refused) << r.max_whitened_error;
+  for (uint32_t i = 0; i < 20; ++i) {
+    EXPECT_TRUE(l.graph.node(i).isApprox(saved[i], 1e-12)) << "fixed node " << i << " moved";
+  }
+  EXPECT_LT(error(l, 59), 0.3 * end_before);
+}
+
 TEST(PoseGraph, RefusesFactorsBetweenUnknownNodesAndAnUnknownGauge) {
   PoseGraph g;
   g.setNode(0, Eigen::Isometry3d::Identity());

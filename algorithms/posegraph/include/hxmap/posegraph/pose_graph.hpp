@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -57,9 +58,13 @@ class PoseGraph {
   void setNodes(const std::map<uint32_t, Eigen::Isometry3d>& nodes) {
     for (const auto& [id, T] : nodes) setNode(id, T);
   }
+  /// Keeps a node where it is in every solve (e.g. a saved map's
+  /// keyframes, which a run that continues the map must not move).
+  void fixNode(uint32_t id) { fixed_.insert(id); }
+  bool isFixed(uint32_t id) const { return fixed_.count(id) != 0; }
   /// A factor between two nodes that exist (false otherwise).
   bool addFactor(const PoseGraphFactor& factor);
-  /// Optimizes every node but `fixed` (the gauge).
+  /// Optimizes every node but `fixed` (the gauge) and those fixNode() kept.
   PoseGraphReport optimize(uint32_t fixed, int max_iterations = 50);
   /// Adds a loop factor and optimizes; when afterwards any factor's
   /// whitened error exceeds `gate` (the square root of a chi-square
@@ -78,6 +83,7 @@ class PoseGraph {
 
   std::map<uint32_t, Eigen::Isometry3d> nodes_;
   std::vector<PoseGraphFactor> factors_;
+  std::set<uint32_t> fixed_;
 };
 
 }  // namespace hxmap::alg

@@ -108,8 +108,9 @@ class Frontend {
   /// Continues a saved map (hxmap run --load-map), before the first frame:
   /// frames are lost until one relocalizes in it through the saved keyframe
   /// database (verified by ICP against the map, as any relocalization);
-  /// nothing is fused before. Loop closure is off for such a run (a
-  /// closure rebuilds the map from this run's keyframes only).
+  /// nothing is fused before. Loop closure goes on against the saved
+  /// keyframes, which it never moves (LoopCloser::seed); under a memory
+  /// budget it is off for such a run.
   void resumeMap(alg::TsdfMap map, alg::KeyframeDatabase keyframes);
   /// Resuming and not relocalized yet.
   bool resuming() const { return resuming_; }

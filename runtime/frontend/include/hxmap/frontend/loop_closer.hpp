@@ -149,6 +149,14 @@ class LoopCloser {
   /// back when a comparison looks at them. Null: no budget.
   void setBlockBacking(alg::BlockBacking* backing, size_t budget_bytes);
   const alg::TsdfMap& keyframeMap() const { return map_; }
+  /// Continues a saved map (hxmap run --load-map): its keyframes enter the
+  /// graph as nodes no solve moves and the database as candidates, and the
+  /// map is what this run's keyframes are checked against and, after a
+  /// closure, fused onto (its frames' observations were not saved). The
+  /// first keyframe taken in after seeding is fixed too: relocalization put
+  /// it in the saved map, and it anchors this run's chain until a closure
+  /// ties the chain to the old keyframes. Called before any add().
+  void seed(const alg::TsdfMap& map, const alg::KeyframeDatabase& keyframes);
   /// Queues a keyframe; step() takes it in once the work before it is done.
   void add(LoopKeyframe keyframe) { pending_.push_back(std::move(keyframe)); }
   /// Runs the next step; false when there was nothing to do.
@@ -207,7 +215,10 @@ class LoopCloser {
   ParallelFor parallel_;
   alg::PoseGraph graph_;
   alg::KeyframeDatabase database_;
-  alg::TsdfMap map_;  ///< the stored keyframes fused at their graph poses
+  alg::TsdfMap map_;  ///< the stored keyframes fused at their graph poses (onto base_)
+  /// A saved map this run continues (seed()): what a rebuild starts from.
+  std::shared_ptr<const alg::TsdfMap> base_;
+  bool fix_next_ = false;  ///< the next keyframe is the first after seed()
   alg::BlockBacking* backing_ = nullptr;
   size_t budget_bytes_ = 0;
   std::map<uint32_t, alg::DepthObservation> observations_;
