@@ -168,7 +168,7 @@ namespace {
 // Weighted running averages: x += a (obs - x) with a = w / (W + w), the
 // weight then capped. Color and update statistics only from observations
 // inside the band (tsdf < mu), not from free-space clamps.
-inline float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max_w) {
+HXMAP_INLINE_IN_CLONES float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max_w) {
   const float new_w = blk.geo[i].weight + w;
   const float a = w / std::max(new_w, 1e-20f);  // 0 where w = 0
   blk.geo[i].sdf_m += a * (tsdf - blk.geo[i].sdf_m);
@@ -176,7 +176,7 @@ inline float fuseGeometry(VoxelBlock& blk, int i, float tsdf, float w, float max
   return a;
 }
 
-inline void fuseAppearance(VoxelBlock& blk, int i, float tsdf, float a, const uint8_t* rgb) {
+HXMAP_INLINE_IN_CLONES void fuseAppearance(VoxelBlock& blk, int i, float tsdf, float a, const uint8_t* rgb) {
   VoxelStats& st = blk.stats[i];
   if (rgb) {  // in [0, 255]: +0.5 and truncation round to nearest (no libm call)
     // DESIGN: the first in-band observation sets the color. The weight a
@@ -256,8 +256,8 @@ struct RowLookup {
 // Projection first (vectorizable), then the lookups. Nearest sample:
 // floor(x + 0.5) by truncation once x + 0.5 >= 0. Voxels behind the camera
 // give inf/NaN in the projection, rejected by the z test.
-inline bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[kBlockSide], float w[kBlockSide],
-                      const uint8_t* rgb[kBlockSide]) {
+HXMAP_INLINE_IN_CLONES bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[kBlockSide],
+                                      float w[kBlockSide], const uint8_t* rgb[kBlockSide]) {
   float pz[kBlockSide], uf[kBlockSide], vf[kBlockSide];
   for (int x = 0; x < kBlockSide; ++x) {
     const float k = static_cast<float>(x);
@@ -296,7 +296,8 @@ inline bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[
 // outside the surface by one job were inside again ten keyframes later.
 // Only blocks with a flagged voxel pay for the check (the flags sit with
 // the colors, away from the geometry the row loop reads).
-inline void maskSeenThrough(float voxel, VoxelBlock& block, int i0, const float* tsdf, float* w, int n = kBlockSide) {
+HXMAP_INLINE_IN_CLONES void maskSeenThrough(float voxel, VoxelBlock& block, int i0, const float* tsdf, float* w,
+                                            int n = kBlockSide) {
   for (int x = 0; x < n; ++x) {
     uint8_t& flags = block.color[i0 + x].flags;
     if (!(flags & kVoxelSeenThrough) || w[x] <= 0.0f) continue;
@@ -313,8 +314,8 @@ inline void maskSeenThrough(float voxel, VoxelBlock& block, int i0, const float*
 // tsdf, w, rgb) as lookupRow fills them (w masked by maskSeenThrough where
 // the block has flagged voxels).
 template <typename Body>
-inline void forEachUpdatedRow(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
-                              const Body& body) {
+HXMAP_INLINE_IN_CLONES void forEachUpdatedRow(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
+                                              const Body& body) {
   const bool flagged = block.seen_through > 0;
   for (int z = 0; z < kBlockSide; ++z) {
     for (int y = 0; y < kBlockSide; ++y) {
@@ -335,16 +336,18 @@ inline void forEachUpdatedRow(const RowLookup& c, VoxelBlock& block, const Eigen
 HXMAP_SIMD_CLONES size_t fuseBlock(const RowLookup& c, VoxelBlock& block, const Eigen::Vector3f& origin_cam,
                                    float max_w, bool has_rgb) {
   size_t updates = 0;
-  forEachUpdatedRow(c, block, origin_cam, [&](int i0, const float* tsdf, const float* w, const uint8_t* const* rgb) {
-    float a[kBlockSide];
-    for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
-    for (int x = 0; x < kBlockSide; ++x) {
-      if (w[x] <= 0.0f) continue;
-      ++updates;
-      if (tsdf[x] >= c.mu) continue;
-      fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
-    }
-  });
+  forEachUpdatedRow(c, block, origin_cam,
+                    [&](int i0, const float* tsdf, const float* w, const uint8_t* const* rgb)
+                        HXMAP_LAMBDA_INLINE_IN_CLONES {
+                          float a[kBlockSide];
+                          for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
+                          for (int x = 0; x < kBlockSide; ++x) {
+                            if (w[x] <= 0.0f) continue;
+                            ++updates;
+                            if (tsdf[x] >= c.mu) continue;
+                            fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
+                          }
+                        });
   return updates;
 }
 

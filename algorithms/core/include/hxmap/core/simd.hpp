@@ -26,3 +26,17 @@
 #define HXMAP_SIMD_CLONES
 #define HXMAP_POPCNT_CLONES
 #endif
+
+/// For the helpers a HXMAP_SIMD_CLONES function calls: inlined into each
+/// clone, so that they are compiled for its target too. DESIGN: a helper
+/// left out of line is one baseline function that every clone calls; GCC
+/// kept the fusion kernel's row loop (a template) out of line, and its AVX2
+/// clone was a call into baseline code. On a lambda the attribute goes
+/// after the parameter list.
+#if defined(__GNUC__)
+#define HXMAP_INLINE_IN_CLONES __attribute__((always_inline)) inline
+#define HXMAP_LAMBDA_INLINE_IN_CLONES __attribute__((always_inline))
+#else
+#define HXMAP_INLINE_IN_CLONES inline
+#define HXMAP_LAMBDA_INLINE_IN_CLONES
+#endif
