@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <optional>
 
+#include "hxmap/core/simd.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/mesh_metrics.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
@@ -20,7 +21,7 @@
 namespace hxmap::rt {
 namespace {
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if defined(HXMAP_SANITIZED)
 // Rendering and mapping 203 frames at 640x480 three times took 17 minutes
 // under AddressSanitizer; the sanitizer builds check the pose graph's unit
 // tests and leave these to the Release suite.

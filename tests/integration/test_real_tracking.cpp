@@ -8,6 +8,7 @@
 
 #include "commands.hpp"
 #include "hxmap/config/config.hpp"
+#include "hxmap/core/simd.hpp"
 #include "hxmap/dataset/dataset.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
@@ -16,7 +17,7 @@
 namespace hxmap::rt {
 namespace {
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if defined(HXMAP_SANITIZED)
 constexpr size_t kFullFrames = 240;  // sanitizer builds: a prefix (about 8 s of the recording)
 #else
 constexpr size_t kFullFrames = 0;  // all

@@ -8,6 +8,7 @@
 // (which test the same source through its baseline version).
 #pragma once
 
+// HXMAP_SANITIZED: a sanitizer build (GCC's or clang's).
 #if defined(__has_feature)
 #if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
 #define HXMAP_SANITIZED 1
