@@ -305,13 +305,24 @@ TEST_F(RealtimeTest, FeedbackThreadSolvesWindowsAndItsCorrectionsReachTheFronten
 }
 
 TEST_F(RealtimeTest, CheckpointCopiesAreTheMapAsItWasAndAreReadOnAnotherThread) {
-  // Every checkpoint is a copy made on the frontend thread: another thread
-  // meshes it while the frontend keeps fusing (ThreadSanitizer runs this
-  // test in CI), and a copy never changes after it was handed over.
+  // Every checkpoint is a snapshot taken on the frontend thread, its voxel
+  // memory shared with the live map until the frontend writes: another
+  // thread meshes it while the frontend keeps fusing (ThreadSanitizer runs
+  // this test in CI), and a snapshot never changes after it was handed
+  // over, voxel for voxel.
   options_.checkpoint_s = 0.05;
   std::mutex mutex;
   std::vector<MapCheckpoint> taken;
   std::vector<size_t> blocks_when_taken, triangles;
+  std::vector<uint64_t> voxels_when_taken;
+  const auto voxelHash = [](const alg::TsdfMap& map) {
+    uint64_t h = 1469598103934665603ULL;  // FNV-1a over sdf and weight, in block order
+    for (size_t i = 0; i < map.blockCount(); ++i) {
+      const auto* b = reinterpret_cast<const unsigned char*>(map.block(i).geo);
+      for (size_t k = 0; k < sizeof(map.block(i).geo); ++k) h = (h ^ b[k]) * 1099511628211ULL;
+    }
+    return h;
+  };
   std::atomic<bool> done{false};
   std::thread reader([&] {
     size_t read = 0;
@@ -337,6 +348,7 @@ TEST_F(RealtimeTest, CheckpointCopiesAreTheMapAsItWasAndAreReadOnAnotherThread) 
   options_.on_checkpoint = [&](MapCheckpoint&& c) {
     std::lock_guard<std::mutex> lock(mutex);
     blocks_when_taken.push_back(c.map->blockCount());
+    voxels_when_taken.push_back(voxelHash(*c.map));
     taken.push_back(std::move(c));
   };
   const RealtimeStats s = runRealtime(frames_, fe_, options_, stop_);
@@ -345,9 +357,11 @@ TEST_F(RealtimeTest, CheckpointCopiesAreTheMapAsItWasAndAreReadOnAnotherThread) 
   ASSERT_GE(taken.size(), 2u) << s.report;
   EXPECT_EQ(s.checkpoints, taken.size());
   EXPECT_NE(s.report.find("checkpoints: "), std::string::npos) << s.report;
+  EXPECT_GT(s.checkpoint_chunks_copied, 0u) << "the frontend wrote into chunks the snapshots held";
   ASSERT_EQ(triangles.size(), taken.size());
   for (size_t k = 0; k < taken.size(); ++k) {
     EXPECT_EQ(taken[k].map->blockCount(), blocks_when_taken[k]) << "copy " << k << " changed after the hand-over";
+    EXPECT_EQ(voxelHash(*taken[k].map), voxels_when_taken[k]) << "copy " << k << " changed after the hand-over";
     EXPECT_GT(triangles[k], 0u) << "copy " << k;
     EXPECT_LE(taken[k].trajectory.size(), fe_.trajectory().size());
     if (k > 0) {

@@ -388,6 +388,7 @@ IntegrationStats fuseObservation(TsdfMap& map, const DepthObservation& obs, cons
                     vs,
                     img.data(),
                     img.width};
+  map.prepareWrites(blocks);  // copies made here, not by the threads below
   std::atomic<size_t> updated{0};
   parallel(blocks.size(), [&](size_t begin, size_t end) {
     size_t local_updates = 0;

@@ -29,9 +29,54 @@ TsdfMap::TsdfMap(const TsdfMap& other)
       table_values_(other.table_values_) {
   chunks_.reserve(other.chunks_.size());
   for (const auto& chunk : other.chunks_) {
-    chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
+    addChunk();
     std::copy(chunk.get(), chunk.get() + kChunkBlocks, chunks_.back().get());
   }
+}
+
+void TsdfMap::addChunk() {
+  chunks_.push_back(std::make_shared<VoxelBlock[]>(kChunkBlocks));
+  chunk_generation_.push_back(generation_);
+}
+
+void TsdfMap::ownChunk(size_t chunk) {
+  if (snapshots_alive_ && snapshots_alive_->load(std::memory_order_acquire) == 0) {
+    shared_below_ = 0;  // no snapshot reads the chunks any more
+    return;
+  }
+  auto own = std::make_shared<VoxelBlock[]>(kChunkBlocks);
+  std::copy(chunks_[chunk].get(), chunks_[chunk].get() + kChunkBlocks, own.get());
+  chunks_[chunk] = std::move(own);
+  chunk_generation_[chunk] = generation_;
+  ++chunks_copied_on_write_;
+}
+
+void TsdfMap::prepareWrites(const std::vector<int32_t>& block_indices) {
+  for (const int32_t b : block_indices) {
+    const size_t c = static_cast<size_t>(b) / kChunkBlocks;
+    if (chunk_generation_[c] < shared_below_) ownChunk(c);
+  }
+}
+
+TsdfMap TsdfMap::snapshot() {
+  TsdfMap out(params_);
+  out.stale_end_ = stale_end_;
+  out.keys_ = keys_;
+  out.block_revisions_ = block_revisions_;
+  out.revision_ = revision_;
+  out.table_keys_ = table_keys_;
+  out.table_values_ = table_values_;
+  out.chunks_ = chunks_;
+  // Every chunk now is below both maps' line; chunks added or copied
+  // later are above it.
+  ++generation_;
+  shared_below_ = generation_;
+  out.chunk_generation_ = chunk_generation_;
+  out.generation_ = out.shared_below_ = generation_;
+  if (!snapshots_alive_) snapshots_alive_ = std::make_shared<std::atomic<int>>(0);
+  snapshots_alive_->fetch_add(1, std::memory_order_relaxed);
+  out.hold_.count = snapshots_alive_;
+  return out;
 }
 
 TsdfMap& TsdfMap::operator=(const TsdfMap& other) {
@@ -59,7 +104,7 @@ int32_t TsdfMap::findOrAllocate(const BlockKey& key) {
   if ((keys_.size() + 1) * 2 > table_keys_.size()) rehash(table_keys_.size() * 2);
   const int32_t index = static_cast<int32_t>(keys_.size());
   keys_.push_back(key);
-  if (keys_.size() > chunks_.size() * kChunkBlocks) chunks_.push_back(std::make_unique<VoxelBlock[]>(kChunkBlocks));
+  if (keys_.size() > chunks_.size() * kChunkBlocks) addChunk();
   if (static_cast<size_t>(index) < stale_end_) block(static_cast<size_t>(index)) = VoxelBlock{};
   block_revisions_.push_back(0);
   if (!elsewhere_.empty()) {
@@ -276,7 +321,10 @@ size_t TsdfMap::removeBlocks(std::vector<int32_t> block_indices) {
   // Chunks no block uses go back to the system; slots beyond the blocks
   // hold old voxels until findOrAllocate clears them.
   const size_t chunks = (keys_.size() + kChunkBlocks - 1) / kChunkBlocks;
-  if (chunks < chunks_.size()) chunks_.resize(chunks);
+  if (chunks < chunks_.size()) {
+    chunks_.resize(chunks);
+    chunk_generation_.resize(chunks);
+  }
   stale_end_ = std::min(std::max(stale_end_, before), chunks_.size() * kChunkBlocks);
   rehash(table_keys_.size());
   return refused;
@@ -285,6 +333,7 @@ size_t TsdfMap::removeBlocks(std::vector<int32_t> block_indices) {
 void TsdfMap::clear() {
   elsewhere_.clear();
   chunks_.clear();
+  chunk_generation_.clear();
   stale_end_ = 0;
   keys_.clear();
   block_revisions_.clear();

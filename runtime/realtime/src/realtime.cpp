@@ -138,6 +138,7 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   stats.checkpoints_forced = front.checkpoints_forced;
   stats.checkpoint_copy_p50_ms = percentileOf(front.checkpoint_copy_ms, 0.5);
   stats.checkpoint_copy_max_ms = percentileOf(front.checkpoint_copy_ms, 1.0);
+  stats.checkpoint_chunks_copied = front.chunks_copied_on_write;
   stats.results = std::move(front.results);
   const SchedulerCounters& c = stats.counters;
   const size_t background = refine.size();
@@ -167,8 +168,12 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
   if (extra) stats.report += "  " + extra->reportLine() + "\n";
   if (stats.checkpoints > 0) {
     stats.report += fmt::format(
-        "  checkpoints: {} map copies on the frontend thread ({} forced without slack), p50 {:.1f} ms, max {:.1f} ms\n",
-        stats.checkpoints, stats.checkpoints_forced, stats.checkpoint_copy_p50_ms, stats.checkpoint_copy_max_ms);
+        "  checkpoints: {} map snapshots on the frontend thread ({} forced without slack), p50 {:.1f} ms, max {:.1f} "
+        "ms; {} chunks of blocks ({:.1f} MiB) copied on write after them\n",
+        stats.checkpoints, stats.checkpoints_forced, stats.checkpoint_copy_p50_ms, stats.checkpoint_copy_max_ms,
+        stats.checkpoint_chunks_copied,
+        static_cast<double>(stats.checkpoint_chunks_copied * alg::TsdfMap::chunkBlocks() * sizeof(alg::VoxelBlock)) /
+            (1024.0 * 1024.0));
   }
   const alg::FeedbackParams& fp = frontend.params().feedback;
   if (fp.enabled) {

@@ -476,6 +476,10 @@ void FrontendStage::step(const Arrival& a) {
   const FrameResult& kept = results.emplace_back(std::move(r));
   frames_done_.fetch_add(1, std::memory_order_relaxed);
   reintegrateIntoSlack(kept);
+  // A map rebuilt by loop closure starts its own count.
+  const uint64_t copied = frontend_.map().chunksCopiedOnWrite();
+  chunks_copied_on_write += copied >= map_chunks_copied_seen_ ? copied - map_chunks_copied_seen_ : copied;
+  map_chunks_copied_seen_ = copied;
   checkpointIntoSlack();
 }
 
@@ -563,7 +567,7 @@ void FrontendStage::checkpointIntoSlack() {
   const bool forced = due_s >= 3.0;
   if (!forced && ctx_.slackMs() < cost_ms) return;
   MapCheckpoint c;
-  c.map = std::make_shared<const alg::TsdfMap>(frontend_.map());
+  c.map = std::make_shared<const alg::TsdfMap>(frontend_.mapSnapshot());
   c.details = frontend_.details();
   c.trajectory = frontend_.trajectory();
   const int64_t end = ctx_.nowNs();

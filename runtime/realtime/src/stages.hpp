@@ -321,6 +321,9 @@ class FrontendStage {
   std::vector<FrameResult> results;
   std::vector<double> checkpoint_copy_ms;
   uint64_t checkpoints_forced = 0;
+  /// Chunks of blocks the frontend copied before writing into them because
+  /// a checkpoint's snapshot shared them (TsdfMap::snapshot).
+  uint64_t chunks_copied_on_write = 0;
   uint64_t patches_applied = 0, voxels_written = 0, corrections_applied = 0, loop_applied = 0;
   double loop_apply_ms = 0;
 
@@ -342,6 +345,7 @@ class FrontendStage {
   std::atomic<bool> ready_{false}, done_{false};
   std::atomic<uint64_t> frames_done_{0};
   int64_t last_checkpoint_ns_ = -1;
+  uint64_t map_chunks_copied_seen_ = 0;
   std::thread thread_;
 };
 

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "hxmap/dataset/synthetic.hpp"
@@ -274,6 +275,74 @@ TEST(TsdfMap, BlocksNeverMoveAndCopiesAreDeep) {
   EXPECT_EQ(copy.find(BlockKey(299, -299, 598)), map.find(BlockKey(299, -299, 598)));
   copy = map;
   EXPECT_FLOAT_EQ(copy.block(static_cast<size_t>(copy.find(BlockKey(0, 0, 0)))).geo[5].sdf_m, -0.01f);
+}
+
+// A checkpoint's snapshot: the map as it was when taken, whatever the map
+// is written afterwards; voxel memory shared but for the chunks written
+// since, which each side copies before its first write into them.
+TEST(TsdfMap, ASnapshotKeepsItsInstantAndOnlyWrittenChunksAreCopied) {
+  const auto scene = drv::SyntheticScene::room();
+  drv::SyntheticParams sp;
+  const auto traj = drv::syntheticTrajectory(sp);
+  TsdfMap map(params(0.01));
+  for (int k = 0; k < 60; k += 6) integrate(map, observation(scene, traj[static_cast<size_t>(k)].T_world_cam, true, k));
+  const size_t chunks = (map.blockCount() + TsdfMap::chunkBlocks() - 1) / TsdfMap::chunkBlocks();
+  ASSERT_GT(chunks, 50u);
+  const TsdfMap deep = map;
+  TsdfMap snap = map.snapshot();
+  ASSERT_EQ(snap.blockCount(), map.blockCount());
+  const auto sameVoxels = [](const VoxelBlock& a, const VoxelBlock& b) {
+    return std::memcmp(a.geo, b.geo, sizeof(a.geo)) == 0 && std::memcmp(a.color, b.color, sizeof(a.color)) == 0 &&
+           std::memcmp(a.stats, b.stats, sizeof(a.stats)) == 0;
+  };
+  // Shared, not copied.
+  const TsdfMap& const_map = map;
+  const TsdfMap& const_snap = snap;
+  EXPECT_EQ(&const_snap.block(0), &const_map.block(0));
+  EXPECT_EQ(map.chunksCopiedOnWrite(), 0u);
+
+  // One more frame from elsewhere along the path: the map changes, the
+  // snapshot does not, and only chunks that frame wrote were copied.
+  const DepthObservation later = observation(scene, traj[140].T_world_cam, true, 140);
+  const IntegrationStats st = integrate(map, later);
+  ASSERT_GT(st.voxels_updated, 10000u);
+  const uint64_t copied = map.chunksCopiedOnWrite();
+  EXPECT_GT(copied, 0u);
+  EXPECT_LT(copied, chunks);
+  size_t changed = 0;
+  for (size_t b = 0; b < deep.blockCount(); ++b) {
+    ASSERT_EQ(snap.key(b), deep.key(b));
+    ASSERT_TRUE(sameVoxels(const_snap.block(b), deep.block(b))) << "block " << b;
+    changed += !sameVoxels(const_map.block(b), deep.block(b));
+  }
+  EXPECT_GT(changed, 10u);
+  // The same blocks written again: each chunk was copied once.
+  integrate(map, later);
+  EXPECT_EQ(map.chunksCopiedOnWrite(), copied);
+
+  // A write into the snapshot stays in the snapshot.
+  const int32_t far = static_cast<int32_t>(deep.blockCount() - 1);
+  const float before = const_map.block(static_cast<size_t>(far)).geo[3].sdf_m;
+  snap.block(static_cast<size_t>(far)).geo[3].sdf_m = before + 1.0f;
+  EXPECT_EQ(const_map.block(static_cast<size_t>(far)).geo[3].sdf_m, before);
+  EXPECT_EQ(snap.chunksCopiedOnWrite(), 1u);
+
+  // Once every snapshot is gone the map writes in place: a view the
+  // first frames had fused copies nothing.
+  TsdfMap copy(params(0.01));
+  copy = snap;  // a (deep) copy of a snapshot holds nothing
+  snap = TsdfMap(params(0.01));
+  { const TsdfMap gone = map.snapshot(); }
+  integrate(map, observation(scene, traj[120].T_world_cam, true, 120));
+  EXPECT_EQ(map.chunksCopiedOnWrite(), copied) << "no snapshot was alive";
+
+  // Blocks moved out and the map cleared leave a snapshot as it was.
+  const TsdfMap deep2 = map;
+  const TsdfMap snap2 = map.snapshot();
+  map.removeBlocks({0, 1, 2, far});
+  map.clear();
+  ASSERT_EQ(snap2.blockCount(), deep2.blockCount());
+  for (size_t b = 0; b < deep2.blockCount(); ++b) ASSERT_TRUE(sameVoxels(snap2.block(b), deep2.block(b)));
 }
 
 TEST(TsdfMap, AssignedBlocksReuseMemoryAndLeaveNothingStale) {

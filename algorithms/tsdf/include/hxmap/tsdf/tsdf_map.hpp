@@ -4,9 +4,11 @@
 // in the world frame.
 //
 // Thread safety: not synchronized. One writer (the frontend) mutates the map;
-// readers work on their own copy (see copyBlocks) or run between writes.
+// readers work on their own copy (see copyBlocks, snapshot) or run between
+// writes.
 #pragma once
 
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -132,10 +134,31 @@ class TsdfMap {
 
   size_t blockCount() const { return keys_.size(); }
   const BlockKey& key(size_t block_index) const { return keys_[block_index]; }
-  VoxelBlock& block(size_t block_index) { return chunks_[block_index / kChunkBlocks][block_index % kChunkBlocks]; }
+  /// A block to write: a chunk still shared with a snapshot is copied
+  /// first. Writers in parallel call prepareWrites(their blocks) before.
+  VoxelBlock& block(size_t block_index) {
+    const size_t c = block_index / kChunkBlocks;
+    if (chunk_generation_[c] < shared_below_) [[unlikely]]
+      ownChunk(c);
+    return chunks_[c][block_index % kChunkBlocks];
+  }
   const VoxelBlock& block(size_t block_index) const {
     return chunks_[block_index / kChunkBlocks][block_index % kChunkBlocks];
   }
+  /// Makes block(i) for these blocks free of copying, so that threads can
+  /// then write them in parallel (one thread per block).
+  void prepareWrites(const std::vector<int32_t>& block_indices);
+
+  /// A copy that shares this map's voxel memory: O(blocks) in keys and
+  /// table, none in voxels. While the snapshot lives, the chunks of blocks
+  /// (kChunkBlocks each) are shared until either map writes into one,
+  /// which copies that chunk for itself (copy on write); once every
+  /// snapshot is gone, this map writes in place again. For a reader on
+  /// another thread that needs the whole map at one instant (a checkpoint)
+  /// while this map goes on. The snapshot may be destroyed on any thread.
+  TsdfMap snapshot();
+  /// Chunks copied because a snapshot shared them, since construction.
+  uint64_t chunksCopiedOnWrite() const { return chunks_copied_on_write_; }
 
   /// Change tracking, for publishing map updates: every writer (integration,
   /// patches) calls markChanged on the blocks it wrote, which stamps them
@@ -163,7 +186,8 @@ class TsdfMap {
   }
   /// Index of the block, allocating it (voxels zero-weight) when missing;
   /// a block held by the backing (removeBlocks) comes back with its voxels.
-  /// Blocks move only in clear() and removeBlocks().
+  /// Blocks move only in clear(), removeBlocks() and the first write into
+  /// their chunk after a snapshot().
   int32_t findOrAllocate(const BlockKey& key);
 
   /// Memory budget: the backing that removed blocks go to and come back
@@ -230,6 +254,8 @@ class TsdfMap {
     return static_cast<size_t>(h) & mask;
   }
   void rehash(size_t capacity);
+  void ownChunk(size_t chunk);
+  void addChunk();
 
   TsdfParams params_;
   float voxel_size_, truncation_;
@@ -240,7 +266,37 @@ class TsdfMap {
   // few thousand blocks (a deadline miss), and reserved up to twice the
   // memory in use. A chunk is 384 KiB; at most one is partly used.
   static constexpr size_t kChunkBlocks = 16;
-  std::vector<std::unique_ptr<VoxelBlock[]>> chunks_;
+  std::vector<std::shared_ptr<VoxelBlock[]>> chunks_;
+  /// A chunk is shared with a snapshot while its generation is below
+  /// shared_below_: snapshot() raises that past every chunk's, and a chunk
+  /// copied or added takes the map's generation, above it. Once the
+  /// snapshots taken are all gone (snapshots_alive_, decremented with
+  /// release ordering after the reader's last access, read with acquire
+  /// here), shared_below_ drops to 0: writes go in place again.
+  std::vector<uint64_t> chunk_generation_;
+  uint64_t generation_ = 0, shared_below_ = 0;
+  uint64_t chunks_copied_on_write_ = 0;
+  /// Snapshots of this map alive (in this map); in a snapshot, its
+  /// source's counter, held until the snapshot is destroyed.
+  struct SnapshotHold {
+    std::shared_ptr<std::atomic<int>> count;
+    SnapshotHold() = default;
+    SnapshotHold(const SnapshotHold&) {}  // a copy of a map holds nothing
+    SnapshotHold& operator=(const SnapshotHold&) { return *this; }
+    SnapshotHold(SnapshotHold&& o) noexcept : count(std::move(o.count)) {}
+    SnapshotHold& operator=(SnapshotHold&& o) noexcept {
+      release();
+      count = std::move(o.count);
+      return *this;
+    }
+    ~SnapshotHold() { release(); }
+    void release() {
+      if (count) count->fetch_sub(1, std::memory_order_release);
+      count.reset();
+    }
+  };
+  std::shared_ptr<std::atomic<int>> snapshots_alive_;
+  SnapshotHold hold_;
   /// Block slots from blockCount() up to this hold another map's voxels
   /// (left by assignBlocks): findOrAllocate clears them.
   size_t stale_end_ = 0;

@@ -215,6 +215,10 @@ class Frontend {
   size_t refineJobsDropped() const { return jobs_dropped_; }
 
   const alg::TsdfMap& map() const { return map_; }
+  /// The map at this instant for another thread, its voxel memory shared
+  /// until the frontend next writes into it (TsdfMap::snapshot). Between
+  /// frames.
+  alg::TsdfMap mapSnapshot() { return map_.snapshot(); }
   const alg::PinholeCamera& camera() const { return camera_; }
   const FrontendParams& params() const { return params_; }
   /// Every processed frame's pose (lost frames carry the last good pose

@@ -127,8 +127,10 @@ class FrameLimit : public FrameSource {
   size_t delivered_ = 0;
 };
 
-/// What a checkpoint of a live run writes: a copy of the map, its refined
-/// details and the trajectory so far (read on any thread).
+/// What a checkpoint of a live run writes: a snapshot of the map (its
+/// voxel memory shared with the live map until the frontend writes into
+/// it, see TsdfMap::snapshot), its refined details and the trajectory so
+/// far (read on any thread).
 struct MapCheckpoint {
   std::shared_ptr<const alg::TsdfMap> map;
   std::vector<std::shared_ptr<const alg::RefinedDetail>> details;
@@ -177,10 +179,10 @@ struct RealtimeOptions {
   /// publish the pose and map): it may read the frontend, and its time is
   /// taken from the slack before the next frame.
   std::function<void(const FrameResult&, const Frontend&, const RunCounters&)> on_frame;
-  /// Every checkpoint_s (0: never) the frontend thread copies the map into
-  /// the slack after a frame (forced when two intervals overdue) and hands
-  /// the copy to on_checkpoint, which must not block (the copy is meshed
-  /// and written on another thread).
+  /// Every checkpoint_s (0: never) the frontend thread takes a snapshot of
+  /// the map in the slack after a frame (forced when two intervals overdue)
+  /// and hands it to on_checkpoint, which must not block (the snapshot is
+  /// meshed and written on another thread).
   double checkpoint_s = 0;
   std::function<void(MapCheckpoint&&)> on_checkpoint;
   /// Called on hx-frontend for each refinement outcome it applies.
@@ -208,10 +210,12 @@ struct RealtimeStats {
   /// full), completed and written back, shed by the scheduler.
   uint64_t refine_jobs_submitted = 0, refine_jobs_rejected = 0, refine_jobs_completed = 0, refine_jobs_shed = 0;
   uint64_t refine_outcomes_dropped = 0, refine_slices = 0, refine_voxels_written = 0;
-  /// Map copies for checkpoints (how many were forced without the slack),
-  /// and what each cost the frontend thread.
+  /// Map snapshots for checkpoints (how many were forced without the
+  /// slack), what each cost the frontend thread, and the chunks of blocks
+  /// the frontend copied afterwards before writing into them.
   uint64_t checkpoints = 0, checkpoints_forced = 0;
   double checkpoint_copy_p50_ms = 0, checkpoint_copy_max_ms = 0;
+  uint64_t checkpoint_chunks_copied = 0;
   bool stopped_early = false;
   std::string source_error;  ///< why the source ended early (empty: it ran out or was stopped)
   std::string report;        ///< the final table
