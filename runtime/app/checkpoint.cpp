@@ -5,9 +5,96 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <iterator>
+#include <unordered_set>
 #include <utility>
 
+#include "hxmap/tsdf/mesh_extract.hpp"
+
 namespace hxmap::rt {
+
+CheckpointMesher::CheckpointMesher(const alg::MeshParams& params, ReadElsewhere read_elsewhere, int region_blocks)
+    : params_(params), read_elsewhere_(std::move(read_elsewhere)), by_regions_(true), region_blocks_(region_blocks) {}
+
+CheckpointMesher::CheckpointMesher(const alg::MeshParams& params)
+    : params_(params), by_regions_(false), region_blocks_(4) {}
+
+alg::TriangleMesh CheckpointMesher::mesh(const MapCheckpoint& c) {
+  if (!c.map) return {};
+  const alg::TsdfMap& map = *c.map;
+  if (!by_regions_) return alg::extractHybridMesh(map, params_, c.details);
+  // Region keys fit 21 bits an axis as block keys do.
+  const auto pack = [](const alg::RegionKey& r) { return alg::packBlockKey(r); };
+  std::vector<alg::RegionKey> dirty = alg::changedRegions(map, revision_, region_blocks_);
+  // Blocks moved out since the last checkpoint may have changed before:
+  // their regions, and the neighbours that read them across a face.
+  map.blocksElsewhere().forEach([&](const alg::BlockKey& k) {
+    if (elsewhere_before_.contains(k)) return;
+    dirty.push_back(alg::regionOf(k, region_blocks_));
+    for (int axis = 0; axis < 3; ++axis) dirty.push_back(alg::regionOf(k - alg::BlockKey::Unit(axis), region_blocks_));
+  });
+  elsewhere_before_ = map.blocksElsewhere();
+  for (const auto& [key, r] : waiting_) dirty.push_back(r);
+  waiting_.clear();
+  std::unordered_set<uint64_t> done;
+  for (const alg::RegionKey& r : dirty) {
+    const uint64_t key = pack(r);
+    if (!done.insert(key).second) continue;
+    alg::TriangleMesh m;
+    if (alg::regionPartlyElsewhere(map, r, region_blocks_)) {
+      // The region's blocks and the layer beyond its +x/+y/+z faces, those
+      // out of memory from the store.
+      alg::TsdfMap local = alg::copyRegions(map, {r}, region_blocks_);
+      bool complete = true;
+      const alg::BlockKey lo = r * region_blocks_;
+      for (int z = 0; z <= region_blocks_; ++z) {
+        for (int y = 0; y <= region_blocks_; ++y) {
+          for (int x = 0; x <= region_blocks_; ++x) {
+            const alg::BlockKey k = lo + alg::BlockKey(x, y, z);
+            if (!map.heldElsewhere(k)) continue;
+            alg::VoxelBlock b;
+            if (read_elsewhere_ && read_elsewhere_(k, b)) {
+              local.block(static_cast<size_t>(local.findOrAllocate(k))) = b;
+              ++blocks_read_;
+            } else {
+              complete = false;  // taken back since the snapshot, or unreadable
+              ++blocks_unread_;
+            }
+          }
+        }
+      }
+      m = alg::regionMesh(local, r, region_blocks_, params_);
+      if (!complete) {
+        waiting_.emplace(key, r);
+        if (regions_.count(key) != 0) continue;  // the last mesh stays
+      }
+    } else {
+      m = alg::regionMesh(map, r, region_blocks_, params_);
+    }
+    if (m.empty()) {
+      regions_.erase(key);
+    } else {
+      regions_[key] = std::move(m);
+    }
+  }
+  // Regions that hold no block now, in memory or out (a loop closure
+  // rebuilt the map without them), go.
+  std::unordered_set<uint64_t> live;
+  for (const alg::RegionKey& r : alg::occupiedRegions(map, region_blocks_)) live.insert(pack(r));
+  for (auto it = regions_.begin(); it != regions_.end();) {
+    it = live.count(it->first) ? std::next(it) : regions_.erase(it);
+  }
+  revision_ = map.revision();
+  // In key order, so that a mesh of the same map is the same file.
+  std::vector<uint64_t> keys;
+  keys.reserve(regions_.size());
+  for (const auto& [key, m] : regions_) keys.push_back(key);
+  std::sort(keys.begin(), keys.end());
+  alg::TriangleMesh out;
+  for (const uint64_t key : keys) out.append(regions_.at(key));
+  return out;
+}
 
 CheckpointWriter::CheckpointWriter(std::function<void(const MapCheckpoint&)> write, int nice)
     : write_(std::move(write)), nice_(nice) {

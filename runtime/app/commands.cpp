@@ -496,6 +496,14 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
 // Real time: a dataset's frames are decoded up front (a camera delivers
 // decoded frames), then played at their recorded rate through the
 // runtime's stages; a camera's frames go through them as they come.
+// Under a memory budget a checkpoint's mesh reads the blocks out of memory
+// from the block store, on the checkpoint's thread.
+CheckpointMesher checkpointMesher(const HxmapConfig& c, const RunPipeline& p) {
+  if (!p.block_store) return CheckpointMesher(c.mesh);
+  drv::BlockStore* store = p.block_store.get();
+  return CheckpointMesher(c.mesh, [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); });
+}
+
 Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipeline& p, RunRecord& rec) {
   const double mib = static_cast<double>(in.frames.size()) * in.cam.width * in.cam.height * 7 / (1 << 20);
   if (mib > 8192) {
@@ -538,10 +546,11 @@ Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipel
   const bool watchdog = sdWatchdogUsec() > 0;
   // The map and trajectory into the run's folder every checkpoint_s (the
   // poses go to trajectory_live.txt frame by frame).
+  CheckpointMesher mesher = checkpointMesher(c, p);
   CheckpointWriter checkpoints(
       [&](const MapCheckpoint& cp) {
         Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(cp.trajectory));
-        if (s) s = drv::writePly(p.folder.path("mesh.ply"), alg::extractHybridMesh(*cp.map, c.mesh, cp.details));
+        if (s) s = drv::writePly(p.folder.path("mesh.ply"), mesher.mesh(cp));
         if (!s) spdlog::warn("checkpoint: {}", s.message());
       },
       c.runtime.background_nice);
@@ -643,10 +652,11 @@ void runOffline(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipe
   }
   // The mesh and trajectory so far into the run's folder (replaced at the end).
   so.checkpoint_s = c.runtime.checkpoint_s;
+  CheckpointMesher mesher = checkpointMesher(c, p);
   so.on_checkpoint = [&](MapCheckpoint&& cp) {
     const auto t0 = std::chrono::steady_clock::now();
     Status s = drv::writeTextFile(p.folder.path("trajectory.txt"), drv::formatTumTrajectory(cp.trajectory));
-    if (s) s = drv::writePly(p.folder.path("mesh.ply"), alg::extractHybridMesh(*cp.map, c.mesh, cp.details));
+    if (s) s = drv::writePly(p.folder.path("mesh.ply"), mesher.mesh(cp));
     if (!s) spdlog::warn("checkpoint: {}", s.message());
     rec.checkpoint_ms.push_back(
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());

@@ -26,7 +26,8 @@ TsdfMap::TsdfMap(const TsdfMap& other)
       block_revisions_(other.block_revisions_),
       revision_(other.revision_),
       table_keys_(other.table_keys_),
-      table_values_(other.table_values_) {
+      table_values_(other.table_values_),
+      elsewhere_(other.elsewhere_) {
   chunks_.reserve(other.chunks_.size());
   for (const auto& chunk : other.chunks_) {
     addChunk();
@@ -66,6 +67,7 @@ TsdfMap TsdfMap::snapshot() {
   out.revision_ = revision_;
   out.table_keys_ = table_keys_;
   out.table_values_ = table_values_;
+  out.elsewhere_ = elsewhere_;
   out.chunks_ = chunks_;
   // Every chunk now is below both maps' line; chunks added or copied
   // later are above it.

@@ -74,7 +74,8 @@ BlockStore::BlockStore(int fd, std::string path)
       path_(std::move(path)),
       cctx_(ZSTD_createCCtx()),
       dctx_(ZSTD_createDCtx()),
-      writer_dctx_(ZSTD_createDCtx()) {
+      writer_dctx_(ZSTD_createDCtx()),
+      peek_dctx_(ZSTD_createDCtx()) {
   raw_.resize(kBlockRawBytes);
   packed_.resize(ZSTD_compressBound(kBlockRawBytes));
   writer_packed_.resize(ZSTD_compressBound(kBlockRawBytes));
@@ -91,6 +92,7 @@ BlockStore::~BlockStore() {
   ZSTD_freeCCtx(static_cast<ZSTD_CCtx*>(cctx_));
   ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(dctx_));
   ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(writer_dctx_));
+  ZSTD_freeDCtx(static_cast<ZSTD_DCtx*>(peek_dctx_));
   if (fd_ >= 0) ::close(fd_);
   ::unlink(path_.c_str());
 }
@@ -165,6 +167,27 @@ bool BlockStore::take(const alg::BlockKey& key, alg::VoxelBlock& out) {
     return false;
   }
   ++stats_.taken;
+  return true;
+}
+
+bool BlockStore::peek(const alg::BlockKey& key, alg::VoxelBlock& out) {
+  const uint64_t k = alg::packBlockKey(key);
+  std::lock_guard lock(m_);
+  auto copy = [&](const Queued& q) {
+    unpackBlock(q.raw.data(), out);
+    out.seen_through = q.seen_through;
+    return true;
+  };
+  if (const auto it = queued_.find(k); it != queued_.end()) return copy(it->second);
+  if (writing_ && !in_flight_taken_ && in_flight_key_ == k) return copy(in_flight_);
+  if (const auto it = refused_.find(k); it != refused_.end()) return copy(it->second);
+  const auto found = index_.find(k);
+  if (!found) return false;
+  if (const auto ahead = read_ahead_.find(k); ahead != read_ahead_.end()) return copy(ahead->second);
+  const Record r = *found;
+  if (!readRaw(fd_, r.offset, r.stored, r.crc, peek_packed_, peek_raw_, peek_dctx_)) return false;
+  unpackBlock(peek_raw_.data(), out);
+  out.seen_through = r.seen_through;
   return true;
 }
 

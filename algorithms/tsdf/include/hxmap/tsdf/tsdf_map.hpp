@@ -198,7 +198,8 @@ class TsdfMap {
   /// into the freed slots: their indices change (they are marked changed),
   /// keys do not. Returns how many the backing refused (lost).
   size_t removeBlocks(std::vector<int32_t> block_indices);
-  /// Blocks held by the backing (part of the map, not in memory).
+  /// Blocks held by the backing (part of the map, not in memory). Copies
+  /// and snapshots know them too, without the backing to bring them back.
   bool heldElsewhere(const BlockKey& key) const { return elsewhere_.contains(key); }
   const BlockKeySet& blocksElsewhere() const { return elsewhere_; }
   /// Blocks the backing gave back, and those it failed to.

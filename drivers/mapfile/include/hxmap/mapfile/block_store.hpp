@@ -17,8 +17,8 @@
 // camera's predicted view), ahead of its writes, into a bounded cache
 // (kMaxReadAheadBytes), so that take() finds them decompressed.
 //
-// put, take and clear are for one thread (the map's writer); stats and
-// flush may be called from any.
+// put, take and clear are for one thread (the map's writer); peek, stats
+// and flush may be called from any.
 #pragma once
 
 #include <condition_variable>
@@ -68,6 +68,11 @@ class BlockStore : public alg::BlockBacking {
   void clear() override;
   void prefetch(const std::vector<alg::BlockKey>& keys) override;
   bool ready(const alg::BlockKey& key) const override;
+  /// A copy of a block held, which stays held (a checkpoint meshing the
+  /// map's blocks out of memory, on its own thread); false when none is
+  /// held for `key` or it did not read back. Reads under the store's lock,
+  /// as take() does: put and take wait for at most one block's read.
+  bool peek(const alg::BlockKey& key, alg::VoxelBlock& out);
 
   /// Waits until every block put so far is written (or refused) and every
   /// block hinted at is read ahead.
@@ -127,6 +132,8 @@ class BlockStore : public alg::BlockBacking {
   void* cctx_ = nullptr;         ///< the writer's
   void* dctx_ = nullptr;         ///< take()'s
   void* writer_dctx_ = nullptr;  ///< the writer's, for reading ahead
+  std::string peek_packed_, peek_raw_;  ///< peek()'s (under the lock)
+  void* peek_dctx_ = nullptr;
   bool stop_ = false;
   std::thread writer_;
 };
