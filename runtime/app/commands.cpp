@@ -1010,6 +1010,15 @@ int synthCommand(const SynthOptions& o) {
   }
   const SyntheticConfig& sc = config->synthetic;
   drv::SyntheticParams p;
+  // The configuration's camera, when it gives one, renders the frames (a
+  // pinhole: the renderer has no lens distortion to apply).
+  if (const CameraConfig& cc = config->camera; cc.intrinsics_given) {
+    if (cc.k1 != 0 || cc.k2 != 0 || cc.p1 != 0 || cc.p2 != 0 || cc.k3 != 0) {
+      spdlog::error("camera: synthetic frames are rendered without lens distortion; set k1, k2, p1, p2, k3 to 0");
+      return 2;
+    }
+    p.camera = alg::PinholeCamera{cc.fx, cc.fy, cc.cx, cc.cy, cc.width, cc.height, {0, 0, 0, 0, 0}};
+  }
   p.frames = o.frames > 0 ? o.frames : sc.frames;
   p.seed = static_cast<uint64_t>(o.seed >= 0 ? o.seed : sc.seed);
   p.fps = o.fps > 0 ? o.fps : sc.fps;

@@ -18,11 +18,12 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "commands.hpp"
-#include "stop_signals.hpp"
+#include "hxmap/dataset/dataset.hpp"
 #include "hxmap/dataset/ply.hpp"
 #include "hxmap/dataset/synthetic.hpp"
 #include "hxmap/eval/trajectory_metrics.hpp"
 #include "hxmap/frontend/frontend.hpp"
+#include "stop_signals.hpp"
 #include "test_data.hpp"
 
 namespace hxmap::rt {
@@ -315,6 +316,36 @@ TEST(Program, VersionAndUsageErrorsHaveTheDocumentedExitCodes) {
   const auto [trace_rc, trace] = runProgram("run --dataset . --trace /proc/no/such/trace.json --out x");
   EXPECT_EQ(trace_rc, 2);
   EXPECT_NE(trace.find("--trace /proc/no/such/trace.json: cannot write there"), std::string::npos) << trace;
+}
+
+// `hxmap synth` renders with the configuration's camera when it gives one:
+// the images have its size and the sequence's calibration its intrinsics.
+TEST(Program, SynthRendersWithTheConfiguredCamera) {
+  const std::string dir = test::tempDir("synth_camera");
+  const std::string config = dir + "/c.yaml", out = dir + "/seq";
+  {
+    std::ofstream f(config);
+    f << "camera: {fx: 260, fy: 262, cx: 159.5, cy: 119.5, width: 320, height: 240}\n";
+  }
+  const auto [rc, text] = runProgram("-q synth --frames 3 --config '" + config + "' --out '" + out + "'");
+  ASSERT_EQ(rc, 0) << text;
+  const auto loaded = drv::Dataset::open(out);
+  ASSERT_TRUE(loaded) << loaded.message();
+  EXPECT_DOUBLE_EQ((*loaded)->camera().fx, 260.0);
+  EXPECT_DOUBLE_EQ((*loaded)->camera().fy, 262.0);
+  EXPECT_EQ((*loaded)->camera().width, 320);
+  const auto frame = (*loaded)->load(0);
+  ASSERT_TRUE(frame) << frame.message();
+  EXPECT_EQ(frame->depth.cols, 320);
+  EXPECT_EQ(frame->depth.rows, 240);
+  // A distorted lens is not rendered: an error naming the keys.
+  {
+    std::ofstream f(config);
+    f << "camera: {fx: 260, fy: 262, cx: 159.5, cy: 119.5, width: 320, height: 240, k1: 0.1}\n";
+  }
+  const auto [bad_rc, bad] = runProgram("-q synth --frames 3 --config '" + config + "' --out '" + dir + "/bad'");
+  EXPECT_EQ(bad_rc, 2);
+  EXPECT_NE(bad.find("k1, k2, p1, p2, k3"), std::string::npos) << bad;
 }
 
 TEST(RunCommand, WritesOutputsAndSkipsUnreadableFramesWhenAsked) {
