@@ -41,27 +41,31 @@ alg::TriangleMesh CheckpointMesher::mesh(const MapCheckpoint& c) {
   for (const alg::RegionKey& r : dirty) {
     const uint64_t key = pack(r);
     if (!done.insert(key).second) continue;
+    // The blocks the region's mesh reads (its own and the layer beyond its
+    // +x/+y/+z faces) that are out of memory.
+    std::vector<alg::BlockKey> out;
+    const alg::BlockKey lo = r * region_blocks_;
+    for (int z = 0; z <= region_blocks_; ++z) {
+      for (int y = 0; y <= region_blocks_; ++y) {
+        for (int x = 0; x <= region_blocks_; ++x) {
+          if (map.heldElsewhere(lo + alg::BlockKey(x, y, z))) out.push_back(lo + alg::BlockKey(x, y, z));
+        }
+      }
+    }
     alg::TriangleMesh m;
-    if (alg::regionPartlyElsewhere(map, r, region_blocks_)) {
-      // The region's blocks and the layer beyond its +x/+y/+z faces, those
-      // out of memory from the store.
+    if (out.empty()) {
+      m = alg::regionMesh(map, r, region_blocks_, params_);
+    } else {
       alg::TsdfMap local = alg::copyRegions(map, {r}, region_blocks_);
       bool complete = true;
-      const alg::BlockKey lo = r * region_blocks_;
-      for (int z = 0; z <= region_blocks_; ++z) {
-        for (int y = 0; y <= region_blocks_; ++y) {
-          for (int x = 0; x <= region_blocks_; ++x) {
-            const alg::BlockKey k = lo + alg::BlockKey(x, y, z);
-            if (!map.heldElsewhere(k)) continue;
-            alg::VoxelBlock b;
-            if (read_elsewhere_ && read_elsewhere_(k, b)) {
-              local.block(static_cast<size_t>(local.findOrAllocate(k))) = b;
-              ++blocks_read_;
-            } else {
-              complete = false;  // taken back since the snapshot, or unreadable
-              ++blocks_unread_;
-            }
-          }
+      for (const alg::BlockKey& k : out) {
+        alg::VoxelBlock b;
+        if (read_elsewhere_ && read_elsewhere_(k, b)) {
+          local.block(static_cast<size_t>(local.findOrAllocate(k))) = b;
+          ++blocks_read_;
+        } else {
+          complete = false;  // taken back since the snapshot, or unreadable
+          ++blocks_unread_;
         }
       }
       m = alg::regionMesh(local, r, region_blocks_, params_);
@@ -69,8 +73,6 @@ alg::TriangleMesh CheckpointMesher::mesh(const MapCheckpoint& c) {
         waiting_.emplace(key, r);
         if (regions_.count(key) != 0) continue;  // the last mesh stays
       }
-    } else {
-      m = alg::regionMesh(map, r, region_blocks_, params_);
     }
     if (m.empty()) {
       regions_.erase(key);

@@ -493,9 +493,6 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
   return p;
 }
 
-// Real time: a dataset's frames are decoded up front (a camera delivers
-// decoded frames), then played at their recorded rate through the
-// runtime's stages; a camera's frames go through them as they come.
 // Under a memory budget a checkpoint's mesh reads the blocks out of memory
 // from the block store, on the checkpoint's thread.
 CheckpointMesher checkpointMesher(const HxmapConfig& c, const RunPipeline& p) {
@@ -504,6 +501,9 @@ CheckpointMesher checkpointMesher(const HxmapConfig& c, const RunPipeline& p) {
   return CheckpointMesher(c.mesh, [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); });
 }
 
+// Real time: a dataset's frames are decoded up front (a camera delivers
+// decoded frames), then played at their recorded rate through the
+// runtime's stages; a camera's frames go through them as they come.
 Status runLive(const RunOptions& o, const HxmapConfig& c, RunInput& in, RunPipeline& p, RunRecord& rec) {
   const double mib = static_cast<double>(in.frames.size()) * in.cam.width * in.cam.height * 7 / (1 << 20);
   if (mib > 8192) {

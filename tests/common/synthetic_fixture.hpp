@@ -20,6 +20,16 @@ inline RgbdFrame syntheticFrame(const drv::SyntheticScene& scene, const alg::Pin
   return f;
 }
 
+/// A noisy synthetic frame at T_world_cam, preprocessed as fusion takes it,
+/// posed at T_fuse (the render pose when not given).
+inline alg::DepthObservation syntheticObservation(const drv::SyntheticScene& scene, const alg::PinholeCamera& cam,
+                                                  const Eigen::Isometry3d& T_world_cam, int index,
+                                                  const Eigen::Isometry3d* T_fuse = nullptr) {
+  const RgbdFrame f = syntheticFrame(scene, cam, T_world_cam, true, index);
+  const auto pre = alg::preprocessFrame({0, 0, f.rgb, f.depth}, cam, alg::PreprocessParams{});
+  return {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam, (T_fuse ? *T_fuse : T_world_cam).cast<float>()};
+}
+
 /// RGB (CV_8UC3) to intensity in [0, 1] as the mean of the channels (CV_32F).
 inline cv::Mat intensityOf(const cv::Mat& rgb) {
   cv::Mat out(rgb.size(), CV_32F);

@@ -32,10 +32,7 @@ TEST(Checkpoint, AMeshUnderAMemoryBudgetKeepsTheSurfaceOfBlocksMovedOut) {
   ASSERT_TRUE(store) << store.message();
   map.setBacking(store->get());
   auto observe = [&](int i) {
-    const RgbdFrame f = test::syntheticFrame(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, true, i);
-    const auto pre = alg::preprocessFrame({0, 0, f.rgb, f.depth}, cam, alg::PreprocessParams{});
-    return alg::DepthObservation{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam,
-                                 traj[static_cast<size_t>(i)].T_world_cam.cast<float>()};
+    return test::syntheticObservation(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, i);
   };
   for (int i = 0; i < 60; i += 10) alg::integrate(map, observe(i));
   const alg::MeshParams mp;

@@ -85,9 +85,7 @@ TEST(MemoryBudget, FusionDeIntegrationAndWriteBackIntoBlocksMovedOutMeetTheirVox
   ASSERT_TRUE(store) << store.message();
   moved.setBacking(store->get());
   auto observe = [&](int i, const Eigen::Isometry3d& T) {
-    const RgbdFrame f = test::syntheticFrame(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, true, i);
-    const auto pre = alg::preprocessFrame({0, 0, f.rgb, f.depth}, cam, alg::PreprocessParams{});
-    return alg::DepthObservation{pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam, T.cast<float>()};
+    return test::syntheticObservation(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, i, &T);
   };
   auto allOut = [&] {
     std::vector<int32_t> all(moved.blockCount());

@@ -127,8 +127,7 @@ bool BlockStore::take(const alg::BlockKey& key, alg::VoxelBlock& out) {
   const uint64_t k = alg::packBlockKey(key);
   std::unique_lock lock(m_);
   auto giveBack = [&](const Queued& q) {
-    unpackBlock(q.raw.data(), out);
-    out.seen_through = q.seen_through;
+    copyOut(q, out);
     ++stats_.taken;
     return true;
   };
@@ -162,7 +161,7 @@ bool BlockStore::take(const alg::BlockKey& key, alg::VoxelBlock& out) {
     ++stats_.read_ahead_used;
     return true;
   }
-  if (!readRecord(r, out)) {
+  if (!readRecord(r, out, packed_, raw_, dctx_)) {
     ++stats_.read_failures;
     return false;
   }
@@ -173,27 +172,32 @@ bool BlockStore::take(const alg::BlockKey& key, alg::VoxelBlock& out) {
 bool BlockStore::peek(const alg::BlockKey& key, alg::VoxelBlock& out) {
   const uint64_t k = alg::packBlockKey(key);
   std::lock_guard lock(m_);
-  auto copy = [&](const Queued& q) {
-    unpackBlock(q.raw.data(), out);
-    out.seen_through = q.seen_through;
+  const Queued* held = nullptr;  // voxels in memory: queued, being written, refused or read ahead
+  if (const auto it = queued_.find(k); it != queued_.end()) {
+    held = &it->second;
+  } else if (writing_ && !in_flight_taken_ && in_flight_key_ == k) {
+    held = &in_flight_;
+  } else if (const auto refused = refused_.find(k); refused != refused_.end()) {
+    held = &refused->second;
+  } else if (const auto ahead = read_ahead_.find(k); ahead != read_ahead_.end()) {
+    held = &ahead->second;
+  }
+  if (held != nullptr) {
+    copyOut(*held, out);
     return true;
-  };
-  if (const auto it = queued_.find(k); it != queued_.end()) return copy(it->second);
-  if (writing_ && !in_flight_taken_ && in_flight_key_ == k) return copy(in_flight_);
-  if (const auto it = refused_.find(k); it != refused_.end()) return copy(it->second);
+  }
   const auto found = index_.find(k);
-  if (!found) return false;
-  if (const auto ahead = read_ahead_.find(k); ahead != read_ahead_.end()) return copy(ahead->second);
-  const Record r = *found;
-  if (!readRaw(fd_, r.offset, r.stored, r.crc, peek_packed_, peek_raw_, peek_dctx_)) return false;
-  unpackBlock(peek_raw_.data(), out);
-  out.seen_through = r.seen_through;
-  return true;
+  return found && readRecord(*found, out, peek_packed_, peek_raw_, peek_dctx_);
 }
 
-bool BlockStore::readRecord(const Record& r, alg::VoxelBlock& out) {
-  if (!readRaw(fd_, r.offset, r.stored, r.crc, packed_, raw_, dctx_)) return false;
-  unpackBlock(raw_.data(), out);
+void BlockStore::copyOut(const Queued& q, alg::VoxelBlock& out) {
+  unpackBlock(q.raw.data(), out);
+  out.seen_through = q.seen_through;
+}
+
+bool BlockStore::readRecord(const Record& r, alg::VoxelBlock& out, std::string& packed, std::string& raw, void* dctx) {
+  if (!readRaw(fd_, r.offset, r.stored, r.crc, packed, raw, dctx)) return false;
+  unpackBlock(raw.data(), out);
   out.seen_through = r.seen_through;
   return true;
 }

@@ -99,7 +99,10 @@ class BlockStore : public alg::BlockBacking {
   /// Writes the in-flight block (writer thread, lock held on entry and exit).
   void writeInFlight(std::unique_lock<std::mutex>& lock);
   void compactIfMostlyDead(std::unique_lock<std::mutex>& lock);
-  bool readRecord(const Record& r, alg::VoxelBlock& out);
+  /// A record's block from the file, through the caller's buffers and
+  /// decompression context (take()'s or peek()'s; lock held).
+  bool readRecord(const Record& r, alg::VoxelBlock& out, std::string& packed, std::string& raw, void* dctx);
+  static void copyOut(const Queued& q, alg::VoxelBlock& out);
   /// Reads the next hinted block into read_ahead_ (writer thread, lock held
   /// on entry and exit).
   void readAhead(std::unique_lock<std::mutex>& lock);
