@@ -16,9 +16,9 @@ namespace hxmap::rt {
 namespace {
 
 // A checkpoint under a budget: the map's snapshot lacks the blocks moved
-// out, and the checkpoint's mesh still holds their surface (as of the last
-// checkpoint that saw them), region by region; with every block back it is
-// the map's whole mesh again.
+// out, and the checkpoint's mesh still holds their surface, read from the
+// block store region by region; a block the store no longer holds leaves
+// its region's last mesh until the next checkpoint.
 TEST(Checkpoint, AMeshUnderAMemoryBudgetKeepsTheSurfaceOfBlocksMovedOut) {
   const auto scene = drv::SyntheticScene::room();
   const alg::PinholeCamera cam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
