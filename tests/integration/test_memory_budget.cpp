@@ -1,6 +1,7 @@
 // The memory budget: blocks moved out to the block store on disk and
 // brought back leave the TSDF exactly as it was, and a run under a budget
 // keeps its voxels within it while the camera moves on.
+#include <atomic>
 #include <cstring>
 #include <random>
 #include <thread>
@@ -163,17 +164,21 @@ TEST(MemoryBudget, BlocksTakenBackWhileTheWriterIsAtWorkOrReadAheadAreTheBlocksP
     // gets is the block put, whether from the queue or the file, and
     // peeking takes none away.
     size_t peeked = 0, peeked_wrong = 0;
+    std::atomic<bool> first_peeked{false};
     std::thread peeker([&] {
       alg::VoxelBlock b;
       for (int i = kBlocks - 1; i >= 0; --i) {
         const size_t k = static_cast<size_t>(i);
-        if (!(*store)->peek(before.key(k), b)) continue;  // taken back already
+        const bool held = (*store)->peek(before.key(k), b);
+        first_peeked.store(true);
+        if (!held) continue;  // taken back already
         ++peeked;
         const alg::VoxelBlock& x = before.block(k);
         peeked_wrong +=
             std::memcmp(x.geo, b.geo, sizeof x.geo) != 0 || std::memcmp(x.stats, b.stats, sizeof x.stats) != 0;
       }
     });
+    while (!first_peeked.load()) std::this_thread::yield();  // its first peek finds every block held
     // Every 7th back at once (most still queued), then the rest in order
     // while the writer works through them.
     for (int i = 0; i < kBlocks; i += 7) map.findOrAllocate(before.key(static_cast<size_t>(i)));
