@@ -123,6 +123,12 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
       EXPECT_EQ(k.rgb.size(), k.depth.size());
     }
   }
+  // Feedback is off: no job samples its field for the implicit channels
+  // (below, they do, as with feedback on).
+  for (auto& j : jobs) {
+    EXPECT_FALSE(j.implicit_surface);
+    j.implicit_surface = true;
+  }
   // The newest job that has rays to learn from (an ROI whose keyframes see
   // it only outside the field's bounds has none, and trains 0 iterations),
   // run and applied: voxels change inside its box only.
@@ -162,6 +168,9 @@ TEST_F(Pipeline, KeyframesMakeSelfContainedRefineJobsWhoseWriteBackStaysInTheirB
     EXPECT_FLOAT_EQ(q->sigma_neural_m, std::max(0.0f, sigma)) << key.transpose();
   }
   EXPECT_GT(scored, 0u) << "no block the job rendered is in the quality map";
+  RefineJob unsampled = job;
+  unsampled.implicit_surface = false;
+  EXPECT_FALSE(runRefineJob(unsampled, p.refine.implicit).surface);
   // The job's field joins the pose feedback's implicit channels: a window
   // of the keyframes that saw the ROI gets implicit residuals inside it.
   ASSERT_TRUE(o.surface);

@@ -884,6 +884,12 @@ void Frontend::makeRefineJobs(uint32_t keyframe_id) {
     job.map_epoch = map_epoch_;
     job.roi = roi;
     job.snapshot = std::make_shared<const alg::TsdfMap>(alg::copyBlocks(map_, roi.box_world));
+    // DESIGN: sampling the field for feedback's implicit channels costs a
+    // job 6-38 ms on the soak's room (the write-back itself 2.5-6.4 ms):
+    // with feedback off, a 30 FPS frame's slack never fitted that slice,
+    // and every job behind it was cancelled.
+    job.implicit_surface = params_.feedback.enabled &&
+                           (params_.feedback.lambda_photo_implicit > 0 || params_.feedback.lambda_depth_implicit > 0);
     for (const auto& key : roi.blocks) block_submitted_[alg::packBlockKey(key)] = keyframe_id;
     pending_jobs_.push_back(std::move(job));
     ++jobs_made_;

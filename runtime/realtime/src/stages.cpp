@@ -108,14 +108,25 @@ void RefineWorker::runJob(RefineJob& job) {
   RefineOutcome outcome;
   outcome.job_id = job.id;
   outcome.map_epoch = job.map_epoch;
+  bool written = false;
   while (!ctx_.stopping.load()) {
     // Each phase's slices have their own cost model: a setup slice costs
     // several iterations, and one cost for both would keep iterations out
     // of slack they fit in.
     // A serial run trains to the iteration cap: no wall-clock budget.
     const bool training =
-        refiner && !refiner->finished() && (ctx_.serial || outcome.train_ms < params_.time_budget_ms);
-    ticket.kind = !refiner ? "refine setup" : training ? "refine" : "refine write-back";
+        refiner && !written && !refiner->finished() && (ctx_.serial || outcome.train_ms < params_.time_budget_ms);
+    enum {
+      kSetup,
+      kTrain,
+      kWriteBack,
+      kSurface
+    } phase = !refiner   ? kSetup
+              : training ? kTrain
+              : !written ? kWriteBack
+                         : kSurface;
+    static constexpr const char* kKinds[] = {"refine setup", "refine", "refine write-back", "refine surface"};
+    ticket.kind = kKinds[phase];
     const uint64_t epoch = sched.frameEpoch();
     const Verdict v = ctx_.admit(ticket);
     if (v == Verdict::kWait) {
@@ -127,19 +138,21 @@ void RefineWorker::runJob(RefineJob& job) {
       return;
     }
     const int64_t s0 = ctx_.nowNs();
-    enum { kSetup, kTrain, kWriteBack } phase = kTrain;
-    if (!refiner) {
-      refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, params_);
-      phase = kSetup;
-    } else if (training) {
-      refiner->iterate(std::max(1, params_.slice_iterations));
-    } else {
-      outcome.out_of_time = !refiner->finished();
-      outcome.result = refiner->result();
-      if (refiner->iterations() > 0) {
+    switch (phase) {
+      case kSetup:
+        refiner = std::make_unique<alg::RoiRefiner>(*job.snapshot, job.roi.box_world, job.keyframes, params_);
+        break;
+      case kTrain:
+        refiner->iterate(std::max(1, params_.slice_iterations));
+        break;
+      case kWriteBack:
+        outcome.out_of_time = !refiner->finished();
+        outcome.result = refiner->result();
+        written = true;
+        break;
+      case kSurface:
         outcome.surface = std::make_shared<alg::FieldSurface>(refiner->field(), 3.0f, &refiner->seen());
-      }
-      phase = kWriteBack;
+        break;
     }
     const int64_t s1 = ctx_.nowNs();
     const double ms = static_cast<double>(s1 - s0) * 1e-6;
@@ -147,7 +160,10 @@ void RefineWorker::runJob(RefineJob& job) {
     counters_.slices.fetch_add(1);
     if (ctx_.trace) ctx_.trace->add({ticket.kind.c_str(), "background", s0, s1 - s0, 3 + index_, -1, -1});
     (phase == kSetup ? outcome.setup_ms : phase == kTrain ? outcome.train_ms : outcome.result_ms) += ms;
-    if (phase == kWriteBack) {
+    // The field is sampled in a slice of its own (see RefineJob::implicit_surface).
+    const bool done =
+        phase == kSurface || (phase == kWriteBack && !(job.implicit_surface && refiner->iterations() > 0));
+    if (done) {
       sched.jobFinished(ticket);
       counters_.done.fetch_add(1);
       if (!outcomes_.tryPush(std::move(outcome))) counters_.outcomes_full.fetch_add(1);

@@ -26,7 +26,7 @@ RefineOutcome runRefineJob(const RefineJob& job, const alg::ImplicitParams& para
   }
   const auto t2 = Clock::now();
   out.result = refiner.result();
-  if (refiner.iterations() > 0)
+  if (job.implicit_surface && refiner.iterations() > 0)
     out.surface = std::make_shared<alg::FieldSurface>(refiner.field(), 3.0f, &refiner.seen());
   const auto t3 = Clock::now();
   out.setup_ms = ms(t0, t1), out.train_ms = ms(t1, t2), out.result_ms = ms(t2, t3);

@@ -26,6 +26,9 @@ struct RefineJob {
   alg::Roi roi;
   std::shared_ptr<const alg::TsdfMap> snapshot;
   std::vector<alg::KeyframeImages> keyframes;
+  /// Sample the trained field for pose feedback's implicit channels
+  /// (RefineOutcome::surface): only when feedback reads them.
+  bool implicit_surface = true;
 };
 
 /// A job's outcome, for the map's writer.
@@ -38,7 +41,8 @@ struct RefineOutcome {
   double result_ms = 0;      ///< write-back and sigma_Neural
   bool out_of_time = false;  ///< stopped by params.time_budget_ms
   /// The trained field as the pose feedback's implicit surface (sampled
-  /// once, timed in result_ms); null when the job had nothing to learn.
+  /// once, timed in result_ms); null when the job had nothing to learn or
+  /// was made without RefineJob::implicit_surface.
   std::shared_ptr<const alg::FieldSurface> surface;
 };
 
