@@ -4,6 +4,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <memory>
 
@@ -253,38 +254,136 @@ struct RowLookup {
 
 // A row of 8 voxels starting at p0 (camera frame): truncated SDF, weight
 // (0: not updated) and pixel color of each; false when none is updated.
-// Projection first (vectorizable), then the lookups. Nearest sample:
-// floor(x + 0.5) by truncation once x + 0.5 >= 0. Voxels behind the camera
-// give inf/NaN in the projection, rejected by the z test.
+// Nearest sample: floor(x + 0.5) by truncation once x + 0.5 >= 0. Voxels
+// behind the camera give inf/NaN in the projection, which every test
+// rejects. Voxels outside the image read pixel 0 and are masked.
+// DESIGN: the row is 8 lanes of one vector (GCC/Clang vector extensions:
+// AVX2 in the AVX2 clone, SSE or NEON pairs elsewhere), and only the 8
+// pixel loads are scalar. Written as plain loops over 8 floats, the
+// compiler vectorized none of it and made branches of the per-voxel tests
+// (in the image, in front of the pixel's surface or behind it: they vary
+// along the band and mispredict).
+using RowF = float __attribute__((vector_size(4 * kBlockSide)));
+using RowI = int32_t __attribute__((vector_size(4 * kBlockSide)));
+#define HXMAP_ROW_SELECT(mask, a, b) \
+  reinterpret_cast<RowF>(((mask) & reinterpret_cast<RowI>(a)) | (~(mask) & reinterpret_cast<RowI>(b)))
+
 HXMAP_INLINE_IN_CLONES bool lookupRow(const RowLookup& c, const Eigen::Vector3f& p0, float tsdf[kBlockSide],
                                       float w[kBlockSide], const uint8_t* rgb[kBlockSide]) {
-  float pz[kBlockSide], uf[kBlockSide], vf[kBlockSide];
+  const RowF k = {0, 1, 2, 3, 4, 5, 6, 7};
+  const RowF zero = k - k;
+  const RowF px = p0.x() + k * c.dx.x(), py = p0.y() + k * c.dx.y(), pz = p0.z() + k * c.dx.z();
+  const RowF inv_z = 1.0f / pz;
+  const RowF uf = c.fx * px * inv_z + (c.cx + 0.5f), vf = c.fy * py * inv_z + (c.cy + 0.5f);
+  const RowI in = (pz > 0.0f) & (uf >= 0.0f) & (vf >= 0.0f) & (uf < c.Wf) & (vf < c.Hf);
+  const RowI u = __builtin_convertvector(HXMAP_ROW_SELECT(in, uf, zero), RowI);
+  const RowI v = __builtin_convertvector(HXMAP_ROW_SELECT(in, vf, zero), RowI);
+  const RowI index = v * c.width + u;
+  RowF depth, conf;
   for (int x = 0; x < kBlockSide; ++x) {
-    const float k = static_cast<float>(x);
-    const float px = p0.x() + k * c.dx.x(), py = p0.y() + k * c.dx.y();
-    pz[x] = p0.z() + k * c.dx.z();
-    const float inv_z = 1.0f / pz[x];
-    uf[x] = c.fx * px * inv_z + c.cx + 0.5f;
-    vf[x] = c.fy * py * inv_z + c.cy + 0.5f;
+    const PackedDepth::Pixel& p = c.pixels[index[x]];
+    depth[x] = p.depth_m;
+    conf[x] = p.confidence;
+    rgb[x] = p.rgb;
   }
-  // DESIGN: no branch per voxel. Whether a voxel is in the image, in front
-  // of its pixel's surface or behind it varies from voxel to voxel along the
-  // band; as branches these mispredicted often. Voxels outside the image
-  // read pixel 0 and are masked.
-  bool any = false;
-  for (int x = 0; x < kBlockSide; ++x) {
-    const bool in = pz[x] > 0.0f && uf[x] >= 0.0f && vf[x] >= 0.0f && uf[x] < c.Wf && vf[x] < c.Hf;
-    const int u = static_cast<int>(in ? uf[x] : 0.0f), v = static_cast<int>(in ? vf[x] : 0.0f);
-    const PackedDepth::Pixel& px = c.pixels[v * c.width + u];
-    const float sdf = px.depth_m - pz[x];
-    const bool ok = in & (px.depth_m > 0.0f) & (sdf >= -c.mu);
-    tsdf[x] = ok ? std::min(sdf, c.mu) : 0.0f;
-    w[x] = ok ? px.confidence : 0.0f;
-    rgb[x] = px.rgb;
-    any |= ok;
-  }
-  return any;
+  const RowF sdf = depth - pz;
+  const RowI ok = in & (depth > 0.0f) & (sdf >= -c.mu);
+  const RowF mu = zero + c.mu;
+  const RowF clamped = HXMAP_ROW_SELECT(sdf < mu, sdf, mu);
+  const RowF t = HXMAP_ROW_SELECT(ok, clamped, zero), weight = HXMAP_ROW_SELECT(ok, conf, zero);
+  std::memcpy(tsdf, &t, sizeof(t));
+  std::memcpy(w, &weight, sizeof(weight));
+  int32_t any = 0;
+  for (int x = 0; x < kBlockSide; ++x) any |= ok[x];
+  return any != 0;
 }
+
+// fuseGeometry on a row of 8 voxels, as 8 lanes: the row's (sdf, weight)
+// pairs split into two vectors and joined again. Returns the blend weight a
+// of each voxel.
+HXMAP_INLINE_IN_CLONES void fuseGeometryRow(VoxelBlock& blk, int i0, const float* tsdf_in, const float* w_in,
+                                            float max_w, float a_out[kBlockSide]) {
+  static_assert(sizeof(VoxelGeometry) == 2 * sizeof(float));
+  RowF lo, hi, tsdf, w;
+  std::memcpy(&lo, &blk.geo[i0], sizeof(lo));
+  std::memcpy(&hi, &blk.geo[i0 + kBlockSide / 2], sizeof(hi));
+  std::memcpy(&tsdf, tsdf_in, sizeof(tsdf));
+  std::memcpy(&w, w_in, sizeof(w));
+  const RowF sdf = __builtin_shufflevector(lo, hi, 0, 2, 4, 6, 8, 10, 12, 14);
+  const RowF weight = __builtin_shufflevector(lo, hi, 1, 3, 5, 7, 9, 11, 13, 15);
+  const RowF new_w = weight + w;
+  const RowF zero = w - w, eps = zero + 1e-20f, cap = zero + max_w;
+  const RowF a = w / HXMAP_ROW_SELECT(new_w < eps, eps, new_w);  // as std::max(new_w, eps)
+  const RowF sdf_out = sdf + a * (tsdf - sdf);
+  const RowF w_out = HXMAP_ROW_SELECT(cap < new_w, cap, new_w);  // as std::min(new_w, cap)
+  lo = __builtin_shufflevector(sdf_out, w_out, 0, 8, 1, 9, 2, 10, 3, 11);
+  hi = __builtin_shufflevector(sdf_out, w_out, 4, 12, 5, 13, 6, 14, 7, 15);
+  std::memcpy(static_cast<void*>(&blk.geo[i0]), &lo, sizeof(lo));
+  std::memcpy(static_cast<void*>(&blk.geo[i0 + kBlockSide / 2]), &hi, sizeof(hi));
+  std::memcpy(a_out, &a, sizeof(a));
+}
+
+// fuseAppearance on a row of 8 voxels, as 8 lanes, for the lanes that are
+// updated inside the band (w > 0, tsdf < mu); the arithmetic of each lane is
+// fuseAppearance's, so the two agree bit for bit (OptimizedKernelAgreesWithReference).
+HXMAP_INLINE_IN_CLONES void fuseAppearanceRow(VoxelBlock& blk, int i0, const float* tsdf_in, const float* w_in,
+                                              const float* a_in, float mu, const uint8_t* const* rgb) {
+  static_assert(sizeof(VoxelStats) == 3 * sizeof(float) && sizeof(VoxelColor) == 4);
+  RowF tsdf, w, a;
+  std::memcpy(&tsdf, tsdf_in, sizeof(tsdf));
+  std::memcpy(&w, w_in, sizeof(w));
+  std::memcpy(&a, a_in, sizeof(a));
+  const RowF zero = w - w;
+  const RowI in_band = (w > zero) & (tsdf < zero + mu);
+  // The row's statistics: 24 words (updates, mean, m2) x 8 in three vectors.
+  RowF s0, s1, s2;
+  std::memcpy(&s0, &blk.stats[i0], sizeof(s0));
+  std::memcpy(&s1, reinterpret_cast<const char*>(&blk.stats[i0]) + sizeof(s0), sizeof(s1));
+  std::memcpy(&s2, reinterpret_cast<const char*>(&blk.stats[i0]) + 2 * sizeof(s0), sizeof(s2));
+  const RowF u01 = __builtin_shufflevector(s0, s1, 0, 3, 6, 9, 12, 15, 0, 0);
+  const RowF m01 = __builtin_shufflevector(s0, s1, 1, 4, 7, 10, 13, 0, 0, 0);
+  const RowF q01 = __builtin_shufflevector(s0, s1, 2, 5, 8, 11, 14, 0, 0, 0);
+  const RowI updates = reinterpret_cast<RowI>(__builtin_shufflevector(u01, s2, 0, 1, 2, 3, 4, 5, 10, 13));
+  const RowF mean = __builtin_shufflevector(m01, s2, 0, 1, 2, 3, 4, 8, 11, 14);
+  const RowF m2 = __builtin_shufflevector(q01, s2, 0, 1, 2, 3, 4, 9, 12, 15);
+  if (rgb) {
+    RowI pix, col;
+    for (int x = 0; x < kBlockSide; ++x) {
+      uint32_t p;
+      std::memcpy(&p, rgb[x], sizeof(p));
+      pix[x] = static_cast<int32_t>(p);
+    }
+    std::memcpy(&col, &blk.color[i0], sizeof(col));
+    // The first in-band observation sets the color (fuseAppearance).
+    const RowF ac = HXMAP_ROW_SELECT(updates == 0, zero + 1.0f, a);
+    RowI out = col & static_cast<int32_t>(0xFF000000u);  // the flags stay
+    for (int ch = 0; ch < 3; ++ch) {
+      const RowF k = __builtin_convertvector((col >> (8 * ch)) & 0xFF, RowF);
+      const RowF o = __builtin_convertvector((pix >> (8 * ch)) & 0xFF, RowF);
+      const RowI v = __builtin_convertvector(k + ac * (o - k) + 0.5f, RowI) & 0xFF;
+      out |= v << (8 * ch);
+    }
+    col = (in_band & out) | (~in_band & col);
+    std::memcpy(static_cast<void*>(&blk.color[i0]), &col, sizeof(col));
+  }
+  const RowI n = updates + 1;
+  const RowF delta = tsdf - mean;
+  const RowF mean_out = mean + delta / __builtin_convertvector(n, RowF);
+  const RowF m2_out = m2 + delta * (tsdf - mean_out);
+  const RowI nu = (in_band & n) | (~in_band & updates);
+  const RowF nm = HXMAP_ROW_SELECT(in_band, mean_out, mean), nq = HXMAP_ROW_SELECT(in_band, m2_out, m2);
+  const RowF nuf = reinterpret_cast<RowF>(nu);
+  const RowF o01 = __builtin_shufflevector(nuf, nm, 0, 8, 0, 1, 9, 0, 2, 10);
+  s0 = __builtin_shufflevector(o01, nq, 0, 1, 8, 3, 4, 9, 6, 7);
+  const RowF o12 = __builtin_shufflevector(nuf, nm, 0, 3, 11, 0, 4, 12, 0, 5);
+  s1 = __builtin_shufflevector(o12, nq, 10, 1, 2, 11, 4, 5, 12, 7);
+  const RowF o23 = __builtin_shufflevector(nuf, nm, 13, 0, 6, 14, 0, 7, 15, 0);
+  s2 = __builtin_shufflevector(o23, nq, 0, 13, 2, 3, 14, 5, 6, 15);
+  std::memcpy(static_cast<void*>(&blk.stats[i0]), &s0, sizeof(s0));
+  std::memcpy(reinterpret_cast<char*>(&blk.stats[i0]) + sizeof(s0), &s1, sizeof(s1));
+  std::memcpy(reinterpret_cast<char*>(&blk.stats[i0]) + 2 * sizeof(s0), &s2, sizeof(s2));
+}
+#undef HXMAP_ROW_SELECT
 
 // A voxel refinement saw through (kVoxelSeenThrough) takes no observation
 // that puts it more than a voxel behind a surface; one that puts it within
@@ -340,13 +439,9 @@ HXMAP_SIMD_CLONES size_t fuseBlock(const RowLookup& c, VoxelBlock& block, const 
                     [&](int i0, const float* tsdf, const float* w, const uint8_t* const* rgb)
                         HXMAP_LAMBDA_INLINE_IN_CLONES {
                           float a[kBlockSide];
-                          for (int x = 0; x < kBlockSide; ++x) a[x] = fuseGeometry(block, i0 + x, tsdf[x], w[x], max_w);
-                          for (int x = 0; x < kBlockSide; ++x) {
-                            if (w[x] <= 0.0f) continue;
-                            ++updates;
-                            if (tsdf[x] >= c.mu) continue;
-                            fuseAppearance(block, i0 + x, tsdf[x], a[x], has_rgb ? rgb[x] : nullptr);
-                          }
+                          fuseGeometryRow(block, i0, tsdf, w, max_w, a);
+                          for (int x = 0; x < kBlockSide; ++x) updates += w[x] > 0.0f;
+                          fuseAppearanceRow(block, i0, tsdf, w, a, c.mu, has_rgb ? rgb : nullptr);
                         });
   return updates;
 }
