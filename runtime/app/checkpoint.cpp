@@ -41,17 +41,7 @@ alg::TriangleMesh CheckpointMesher::mesh(const MapCheckpoint& c) {
   for (const alg::RegionKey& r : dirty) {
     const uint64_t key = pack(r);
     if (!done.insert(key).second) continue;
-    // The blocks the region's mesh reads (its own and the layer beyond its
-    // +x/+y/+z faces) that are out of memory.
-    std::vector<alg::BlockKey> out;
-    const alg::BlockKey lo = r * region_blocks_;
-    for (int z = 0; z <= region_blocks_; ++z) {
-      for (int y = 0; y <= region_blocks_; ++y) {
-        for (int x = 0; x <= region_blocks_; ++x) {
-          if (map.heldElsewhere(lo + alg::BlockKey(x, y, z))) out.push_back(lo + alg::BlockKey(x, y, z));
-        }
-      }
-    }
+    const std::vector<alg::BlockKey> out = alg::regionBlocksElsewhere(map, r, region_blocks_);
     alg::TriangleMesh m;
     if (out.empty()) {
       m = alg::regionMesh(map, r, region_blocks_, params_);

@@ -461,6 +461,9 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
     auto params = publisherParams(c);
     if (!params) return params.error();
     if (in.camera) params->stamp_offset_ns = realtimeMinusMonotonicNs();
+    if (drv::BlockStore* store = p.block_store.get()) {
+      params->read_elsewhere = [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); };
+    }
     auto started = dds::Publisher::start(*params);
     if (!started) return started.error();
     p.publisher = std::move(*started);

@@ -77,6 +77,11 @@ std::string publisherStatsText(const dds::PublisherStats& s, double wall_s) {
              s.snapshot_ms_total, s.mesh_ms_total) +
          (s.region_waits > 0
               ? fmt::format("  region updates held back until their blocks were back in memory: {}\n", s.region_waits)
+              : std::string()) +
+         (s.blocks_read_elsewhere + s.region_retries > 0
+              ? fmt::format("  blocks out of memory read from the block store for region meshes: {}; region updates "
+                            "sent again because a block had come back meanwhile: {}\n",
+                            s.blocks_read_elsewhere, s.region_retries)
               : std::string());
 }
 

@@ -8,9 +8,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -535,9 +537,11 @@ TEST(DdsMessages, APointCloudWhoseSizesDisagreeIsAnError) {
 // one of its chunks, on the test's own topic names.
 class DdsMapLoopback : public ::testing::Test {
  protected:
-  void start(const std::string& name) {
+  void start(const std::string& name, const std::function<bool(const alg::BlockKey&, alg::VoxelBlock&)>& read = {}) {
     const std::string pre = prefix(name.c_str());
-    auto pub = Publisher::start(params(pre));
+    PublisherParams p = params(pre);
+    p.read_elsewhere = read;
+    auto pub = Publisher::start(p);
     ASSERT_TRUE(pub) << pub.message();
     pub_ = std::move(*pub);
     auto participant = Participant::create(kDomain);
@@ -616,6 +620,59 @@ TEST_F(DdsMapLoopback, ARegionWithBlocksOutOfMemoryKeepsItsLastMeshUntilTheyAreB
   EXPECT_EQ(sent.regions_waiting, 0u);
   EXPECT_EQ(sent.region_waits, held.region_waits);
   EXPECT_GT(sent.regions, held.regions);
+  EXPECT_TRUE(reach(expected));
+}
+
+TEST_F(DdsMapLoopback, ARegionWithBlocksOutOfMemoryReadsThemFromTheBlockStore) {
+  // As above, with the block store to read: the changed regions go out at
+  // once, with the surface of the blocks on disk. A block that no longer
+  // reads (taken back into memory since the update) holds its region back
+  // until the next update.
+  auto store = drv::BlockStore::create(::testing::TempDir());
+  ASSERT_TRUE(store) << store.message();
+  drv::BlockStore* s = store->get();
+  std::atomic<int> refuse{0};  // the next reads that fail
+  ASSERT_NO_FATAL_FAILURE(start("budget_read", [s, &refuse](const alg::BlockKey& k, alg::VoxelBlock& b) {
+    if (refuse.load() > 0) {
+      refuse.fetch_sub(1);
+      return false;
+    }
+    return s->peek(k, b);
+  }));
+  alg::TsdfMap map = twoSpheres();
+  const Trajectory trajectory{{1, poseAt(0)}};
+  pub_->flush(map, trajectory, RunCounters{});
+  const alg::TriangleMesh whole = alg::extractMesh(map, alg::MeshParams{});
+  ASSERT_TRUE(reach(whole.triangles.size()));
+  map.setBacking(s);
+  std::vector<int32_t> out;
+  for (size_t b = 0; b < map.blockCount(); b += 2) out.push_back(static_cast<int32_t>(b));
+  ASSERT_EQ(map.removeBlocks(out), 0u);
+  // The blocks left in memory change (a new surface among them), every
+  // region is marked changed.
+  addSphere(map, {0.05f, -0.07f, 0.11f}, 0.05f);
+  map.markAllChanged(map.revision());
+  refuse = 3;
+  pub_->flush(map, trajectory, RunCounters{});
+  const PublisherStats first = pub_->stats();
+  EXPECT_EQ(first.region_waits, 0u);
+  EXPECT_GT(first.blocks_read_elsewhere, out.size() / 2);
+  EXPECT_GE(first.region_retries, 1u);
+  EXPECT_LE(first.region_retries, 3u);
+  EXPECT_EQ(first.regions_waiting, first.region_retries);
+  pub_->flush(map, trajectory, RunCounters{});
+  const PublisherStats second = pub_->stats();
+  EXPECT_EQ(second.regions_waiting, 0u);
+  EXPECT_EQ(second.region_retries, first.region_retries);
+  // What the readers hold is the mesh of the map with every block back.
+  alg::TsdfMap back = map;
+  for (const Eigen::Vector3i& k : map.blocksElsewhere().keys()) {
+    alg::VoxelBlock b;
+    ASSERT_TRUE(s->peek(k, b));
+    back.block(static_cast<size_t>(back.findOrAllocate(k))) = b;
+  }
+  const size_t expected = alg::extractMesh(back, alg::MeshParams{}).triangles.size();
+  EXPECT_NE(expected, whole.triangles.size()) << "the map changed";
   EXPECT_TRUE(reach(expected));
 }
 

@@ -57,16 +57,21 @@ std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks) {
 }
 
 bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks) {
-  if (map.blocksElsewhere().empty()) return false;
+  return !map.blocksElsewhere().empty() && !regionBlocksElsewhere(map, region, region_blocks).empty();
+}
+
+std::vector<BlockKey> regionBlocksElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks) {
+  std::vector<BlockKey> out;
+  if (map.blocksElsewhere().empty()) return out;
   const BlockKey lo = region * region_blocks;
   for (int z = 0; z <= region_blocks; ++z) {
     for (int y = 0; y <= region_blocks; ++y) {
       for (int x = 0; x <= region_blocks; ++x) {
-        if (map.heldElsewhere(lo + BlockKey(x, y, z))) return true;
+        if (map.heldElsewhere(lo + BlockKey(x, y, z))) out.push_back(lo + BlockKey(x, y, z));
       }
     }
   }
-  return false;
+  return out;
 }
 
 TsdfMap copyRegions(const TsdfMap& map, const std::vector<RegionKey>& regions, int region_blocks) {

@@ -58,6 +58,9 @@ struct Publisher::Work {
   int64_t stamp_ns = 0;
   std::unique_ptr<alg::TsdfMap> snapshot;
   std::vector<alg::RegionKey> regions;
+  /// Regions among `regions` with blocks out of memory, and those blocks
+  /// (read into the snapshot on hx-publish).
+  std::vector<std::pair<alg::RegionKey, std::vector<alg::BlockKey>>> elsewhere;
   PathMessage path;
   HealthMessage health;
   uint32_t flush_seq = 0;
@@ -118,20 +121,32 @@ void Publisher::snapshotMap(const alg::TsdfMap& map, int64_t stamp_ns, bool must
   work->kind = Work::kMap;
   work->stamp_ns = stamp_ns;
   // DESIGN: under a memory budget a changed region may have blocks on disk:
-  // meshed now, it would go out without their surface and readers would
-  // drop it. Such a region waits (readers keep its last mesh) until its
-  // blocks are back; the run's last flush brings every block back first.
+  // meshed without them, it would go out without their surface and readers
+  // would drop it. hx-publish reads those blocks from the block store
+  // (read_elsewhere) into the update's copy before meshing. Without a
+  // store to read, such a region waits (readers keep its last mesh) until
+  // its blocks are back; the run's last flush brings every block back
+  // first.
   std::vector<alg::RegionKey> changed = alg::changedRegions(map, map_revision_, params_.region_blocks);
   for (const auto& [key, r] : waiting_regions_) changed.push_back(r);
+  {
+    const std::lock_guard lock(retry_mutex_);
+    changed.insert(changed.end(), retry_regions_.begin(), retry_regions_.end());
+    retry_regions_.clear();
+  }
   std::unordered_map<uint64_t, alg::RegionKey> still_waiting;
   std::unordered_set<uint64_t> taken;
   for (const auto& r : changed) {
     const uint64_t key = packRegion(r);
     if (!taken.insert(key).second) continue;
-    if (alg::regionPartlyElsewhere(map, r, params_.region_blocks)) {
-      still_waiting.emplace(key, r);
-    } else {
+    std::vector<alg::BlockKey> out = alg::regionBlocksElsewhere(map, r, params_.region_blocks);
+    if (out.empty()) {
       work->regions.push_back(r);
+    } else if (params_.read_elsewhere) {
+      work->regions.push_back(r);
+      work->elsewhere.emplace_back(r, std::move(out));
+    } else {
+      still_waiting.emplace(key, r);
     }
   }
   region_waits_ += still_waiting.size();
@@ -326,7 +341,27 @@ void Publisher::process(Work& work) {
     case Work::kMap: {
       const int64_t t0 = nowNs();
       std::vector<MarkerMessage> markers;
-      for (const alg::RegionKey& r : work.regions) writeRegion(*work.snapshot, r, work.stamp_ns, markers);
+      std::unordered_set<uint64_t> incomplete;
+      for (const auto& [r, keys] : work.elsewhere) {
+        for (const alg::BlockKey& k : keys) {
+          alg::VoxelBlock b;
+          if (!params_.read_elsewhere(k, b)) {
+            incomplete.insert(packRegion(r));  // taken back since the update, or unreadable
+            break;
+          }
+          work.snapshot->block(static_cast<size_t>(work.snapshot->findOrAllocate(k))) = b;
+          blocks_read_elsewhere_.fetch_add(1, std::memory_order_relaxed);
+        }
+      }
+      for (const alg::RegionKey& r : work.regions) {
+        if (incomplete.count(packRegion(r)) == 0) {
+          writeRegion(*work.snapshot, r, work.stamp_ns, markers);
+        } else {
+          region_retries_.fetch_add(1, std::memory_order_relaxed);
+          const std::lock_guard lock(retry_mutex_);
+          retry_regions_.push_back(r);  // readers keep its last mesh meanwhile
+        }
+      }
       if (!markers.empty()) writeMarkers(markers);
       writeCloud(work.stamp_ns);
       map_updates_.fetch_add(1, std::memory_order_relaxed);
@@ -497,7 +532,12 @@ PublisherStats Publisher::stats() const {
   s.map_updates = map_updates_.load();
   s.regions = regions_written_.load();
   s.region_waits = region_waits_;
-  s.regions_waiting = waiting_regions_.size();
+  {
+    const std::lock_guard lock(retry_mutex_);
+    s.regions_waiting = waiting_regions_.size() + retry_regions_.size();
+  }
+  s.blocks_read_elsewhere = blocks_read_elsewhere_.load(std::memory_order_relaxed);
+  s.region_retries = region_retries_.load(std::memory_order_relaxed);
   s.chunks = chunks_.load();
   s.chunk_bytes = chunk_bytes_.load();
   s.marker_arrays = marker_arrays_.load();

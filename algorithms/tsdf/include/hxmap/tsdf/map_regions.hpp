@@ -38,6 +38,9 @@ std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks);
 /// its +x/+y/+z faces) is out of memory (a memory budget): meshed now, the
 /// region would lack that block's surface.
 bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks);
+/// Those blocks (the region's and the layer beyond its +x/+y/+z faces held
+/// out of memory), in z, y, x order.
+std::vector<BlockKey> regionBlocksElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks);
 
 /// A map holding copies of the blocks of `regions` and of the blocks just
 /// beyond their +x/+y/+z faces, which the regions' marching cubes read.

@@ -33,6 +33,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -84,6 +85,10 @@ struct PublisherParams {
   int queue_capacity = 16;           ///< work items between the frontend and the publisher thread
   double flush_ack_timeout_s = 2.0;  ///< flush() waits this long at most for reliable readers' acknowledgments
   alg::MeshParams mesh;
+  /// Under a memory budget: copies a block held out of memory (the block
+  /// store's peek; called on hx-publish). Null: a changed region with such
+  /// blocks waits until they are back in memory.
+  std::function<bool(const alg::BlockKey&, alg::VoxelBlock&)> read_elsewhere;
 };
 
 
@@ -95,6 +100,10 @@ struct PublisherStats {
   /// were out of memory (a memory budget), summed over updates.
   uint64_t region_waits = 0;
   uint64_t regions_waiting = 0;  ///< of which still held back now
+  /// With read_elsewhere: blocks out of memory read for a region's mesh,
+  /// and regions held back because one of them no longer read (taken back
+  /// into memory since the update; the region goes out with the next).
+  uint64_t blocks_read_elsewhere = 0, region_retries = 0;
   uint64_t chunks = 0;          ///< chunk samples written (empty ones included)
   uint64_t chunk_bytes = 0;     ///< their payload (vertices, colors, indices)
   uint64_t marker_arrays = 0;   ///< MarkerArray samples written on the map topic (one per update)
@@ -192,6 +201,11 @@ class Publisher {
   std::atomic<uint64_t> marker_arrays_{0}, marker_bytes_{0}, map_resends_{0}, clouds_{0}, cloud_bytes_{0},
       last_cloud_points_{0};
   std::atomic<uint64_t> write_errors_{0};
+  std::atomic<uint64_t> blocks_read_elsewhere_{0}, region_retries_{0};
+  /// Regions hx-publish could not complete (a block did not read): the
+  /// calling thread's next update sends them again.
+  mutable std::mutex retry_mutex_;
+  std::vector<alg::RegionKey> retry_regions_;
   std::atomic<double> mesh_ms_total_{0};
   mutable std::mutex error_mutex_;
   std::string last_error_;
