@@ -165,6 +165,10 @@ void summarize(RealtimeStats& stats, const RunContext& ctx, const stages::Sensor
       stats.refine_jobs_shed, refine.submitted - stats.refine_jobs_completed - stats.refine_jobs_shed,
       stats.refine_slices, stats.refine_voxels_written, stats.keyframes_to_feedback, stats.feedback_ring_full,
       stats.patches_applied, stats.corrections_applied);
+  if (const uint64_t n = refine.counters.surfaces_shed.load(); n > 0) {
+    stats.report += fmt::format(
+        "  of those completed, {} without their field sampled for feedback's implicit channels (that slice shed)\n", n);
+  }
   if (extra) stats.report += "  " + extra->reportLine() + "\n";
   if (stats.checkpoints > 0) {
     stats.report += fmt::format(

@@ -109,6 +109,11 @@ void RefineWorker::runJob(RefineJob& job) {
   outcome.job_id = job.id;
   outcome.map_epoch = job.map_epoch;
   bool written = false;
+  auto deliver = [&] {
+    sched.jobFinished(ticket);
+    counters_.done.fetch_add(1);
+    if (!outcomes_.tryPush(std::move(outcome))) counters_.outcomes_full.fetch_add(1);
+  };
   while (!ctx_.stopping.load()) {
     // Each phase's slices have their own cost model: a setup slice costs
     // several iterations, and one cost for both would keep iterations out
@@ -132,6 +137,12 @@ void RefineWorker::runJob(RefineJob& job) {
     if (v == Verdict::kWait) {
       ctx_.waitForFrameEnd(epoch);
       continue;
+    }
+    if (v == Verdict::kShed && phase == kSurface) {
+      // Written back already: the map gets it, feedback goes without the field.
+      counters_.surfaces_shed.fetch_add(1);
+      deliver();
+      return;
     }
     if (v == Verdict::kShed) {
       counters_.shed.fetch_add(1);
@@ -164,9 +175,7 @@ void RefineWorker::runJob(RefineJob& job) {
     const bool done =
         phase == kSurface || (phase == kWriteBack && !(job.implicit_surface && refiner->iterations() > 0));
     if (done) {
-      sched.jobFinished(ticket);
-      counters_.done.fetch_add(1);
-      if (!outcomes_.tryPush(std::move(outcome))) counters_.outcomes_full.fetch_add(1);
+      deliver();
       return;
     }
   }

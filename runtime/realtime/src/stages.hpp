@@ -106,6 +106,8 @@ class SensorStage {
 /// Counters the refinement workers share.
 struct RefineCounters {
   std::atomic<uint64_t> slices{0}, done{0}, shed{0}, outcomes_full{0};
+  /// Jobs delivered without their field sampled for feedback (that slice shed).
+  std::atomic<uint64_t> surfaces_shed{0};
 };
 
 /// hx-refine-N: ROI jobs (paper 3.3) in scheduler-admitted slices (the
