@@ -274,7 +274,7 @@ HXMAP_INLINE_IN_CLONES bool lookupRow(const RowLookup& c, const Eigen::Vector3f&
   const RowF zero = k - k;
   const RowF px = p0.x() + k * c.dx.x(), py = p0.y() + k * c.dx.y(), pz = p0.z() + k * c.dx.z();
   const RowF inv_z = 1.0f / pz;
-  const RowF uf = c.fx * px * inv_z + (c.cx + 0.5f), vf = c.fy * py * inv_z + (c.cy + 0.5f);
+  const RowF uf = c.fx * px * inv_z + c.cx + 0.5f, vf = c.fy * py * inv_z + c.cy + 0.5f;
   const RowI in = (pz > 0.0f) & (uf >= 0.0f) & (vf >= 0.0f) & (uf < c.Wf) & (vf < c.Hf);
   const RowI u = __builtin_convertvector(HXMAP_ROW_SELECT(in, uf, zero), RowI);
   const RowI v = __builtin_convertvector(HXMAP_ROW_SELECT(in, vf, zero), RowI);
