@@ -47,17 +47,11 @@ alg::TriangleMesh CheckpointMesher::mesh(const MapCheckpoint& c) {
       m = alg::regionMesh(map, r, region_blocks_, params_);
     } else {
       alg::TsdfMap local = alg::copyRegions(map, {r}, region_blocks_);
-      bool complete = true;
-      for (const alg::BlockKey& k : out) {
-        alg::VoxelBlock b;
-        if (read_elsewhere_ && read_elsewhere_(k, b)) {
-          local.block(static_cast<size_t>(local.findOrAllocate(k))) = b;
-          ++blocks_read_;
-        } else {
-          complete = false;  // taken back since the snapshot, or unreadable
-          ++blocks_unread_;
-        }
-      }
+      // Unread: taken back since the snapshot, or unreadable.
+      const size_t unread = alg::readBlocksInto(local, out, read_elsewhere_);
+      blocks_read_ += out.size() - unread;
+      blocks_unread_ += unread;
+      const bool complete = unread == 0;
       m = alg::regionMesh(local, r, region_blocks_, params_);
       if (!complete) {
         waiting_.emplace(key, r);

@@ -29,7 +29,7 @@ namespace hxmap::rt {
 /// out under a budget. One thread.
 class CheckpointMesher {
  public:
-  using ReadElsewhere = std::function<bool(const alg::BlockKey&, alg::VoxelBlock&)>;
+  using ReadElsewhere = alg::BlockReader;
   CheckpointMesher(const alg::MeshParams& params, ReadElsewhere read_elsewhere, int region_blocks = 4);
   /// Without a budget: the map's hybrid mesh, nothing kept.
   explicit CheckpointMesher(const alg::MeshParams& params);

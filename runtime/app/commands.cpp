@@ -275,6 +275,14 @@ struct RunPipeline {
   std::unique_ptr<LiveTrajectoryFile> live_file;
 };
 
+// Under a memory budget: reads a block out of memory from the run's block
+// store (a copy, on the caller's thread); null without a budget.
+alg::BlockReader blockStoreReader(const RunPipeline& p) {
+  drv::BlockStore* store = p.block_store.get();
+  if (!store) return {};
+  return [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); };
+}
+
 // What the run did, for the outputs and the summary.
 struct RunRecord {
   explicit RunRecord(const RunOptions& o) : tracing(!o.trace.empty()) {
@@ -461,9 +469,7 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
     auto params = publisherParams(c);
     if (!params) return params.error();
     if (in.camera) params->stamp_offset_ns = realtimeMinusMonotonicNs();
-    if (drv::BlockStore* store = p.block_store.get()) {
-      params->read_elsewhere = [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); };
-    }
+    params->read_elsewhere = blockStoreReader(p);
     auto started = dds::Publisher::start(*params);
     if (!started) return started.error();
     p.publisher = std::move(*started);
@@ -499,9 +505,7 @@ Expected<RunPipeline> buildPipeline(const RunOptions& o, const HxmapConfig& c, c
 // Under a memory budget a checkpoint's mesh reads the blocks out of memory
 // from the block store, on the checkpoint's thread.
 CheckpointMesher checkpointMesher(const HxmapConfig& c, const RunPipeline& p) {
-  if (!p.block_store) return CheckpointMesher(c.mesh);
-  drv::BlockStore* store = p.block_store.get();
-  return CheckpointMesher(c.mesh, [store](const alg::BlockKey& k, alg::VoxelBlock& b) { return store->peek(k, b); });
+  return p.block_store ? CheckpointMesher(c.mesh, blockStoreReader(p)) : CheckpointMesher(c.mesh);
 }
 
 // Real time: a dataset's frames are decoded up front (a camera delivers

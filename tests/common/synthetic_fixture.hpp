@@ -30,6 +30,24 @@ inline alg::DepthObservation syntheticObservation(const drv::SyntheticScene& sce
   return {pre.depth_m, pre.rgb, pre.levels[pre.finest].confidence, cam, (T_fuse ? *T_fuse : T_world_cam).cast<float>()};
 }
 
+/// The synthetic room at 320x240 along the default trajectory, fused at 2 cm
+/// voxels (8 cm truncation): small maps for tests of the map's memory.
+struct SmallRoom {
+  drv::SyntheticScene scene = drv::SyntheticScene::room();
+  alg::PinholeCamera cam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
+  Trajectory traj = drv::syntheticTrajectory(drv::SyntheticParams{});
+  static alg::TsdfParams tsdf() {
+    alg::TsdfParams p;
+    p.voxel_size_m = 0.02;
+    p.truncation_m = 0.08;
+    return p;
+  }
+  /// Frame i, noisy, posed at T_fuse (its true pose when not given).
+  alg::DepthObservation observe(int i, const Eigen::Isometry3d* T_fuse = nullptr) const {
+    return syntheticObservation(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, i, T_fuse);
+  }
+};
+
 /// RGB (CV_8UC3) to intensity in [0, 1] as the mean of the channels (CV_32F).
 inline cv::Mat intensityOf(const cv::Mat& rgb) {
   cv::Mat out(rgb.size(), CV_32F);

@@ -20,20 +20,12 @@ namespace {
 // block store region by region; a block the store no longer holds leaves
 // its region's last mesh until the next checkpoint.
 TEST(Checkpoint, AMeshUnderAMemoryBudgetKeepsTheSurfaceOfBlocksMovedOut) {
-  const auto scene = drv::SyntheticScene::room();
-  const alg::PinholeCamera cam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
-  drv::SyntheticParams sp;
-  const auto traj = drv::syntheticTrajectory(sp);
-  alg::TsdfParams p;
-  p.voxel_size_m = 0.02;
-  p.truncation_m = 0.08;
-  alg::TsdfMap map(p);
+  const test::SmallRoom room;
+  alg::TsdfMap map(room.tsdf());
   auto store = drv::BlockStore::create(::testing::TempDir());
   ASSERT_TRUE(store) << store.message();
   map.setBacking(store->get());
-  auto observe = [&](int i) {
-    return test::syntheticObservation(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, i);
-  };
+  auto observe = [&](int i) { return room.observe(i); };
   for (int i = 0; i < 60; i += 10) alg::integrate(map, observe(i));
   const alg::MeshParams mp;
   CheckpointMesher mesher(mp, [&](const alg::BlockKey& k, alg::VoxelBlock& b) { return (*store)->peek(k, b); });

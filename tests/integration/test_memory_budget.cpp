@@ -74,20 +74,13 @@ TEST(MemoryBudget, FusionDeIntegrationAndWriteBackIntoBlocksMovedOutMeetTheirVox
   // out since the job's snapshot: each must find the voxels it left, not
   // empty blocks. Both maps take the same steps; one has every block moved
   // out before each.
-  const auto scene = drv::SyntheticScene::room();
-  const alg::PinholeCamera cam{300, 300, 159.5, 119.5, 320, 240, {0, 0, 0, 0, 0}};
-  drv::SyntheticParams sp;
-  const auto traj = drv::syntheticTrajectory(sp);
-  alg::TsdfParams p;
-  p.voxel_size_m = 0.02;
-  p.truncation_m = 0.08;
-  alg::TsdfMap kept(p), moved(p);
+  const test::SmallRoom room;
+  const Trajectory& traj = room.traj;
+  alg::TsdfMap kept(room.tsdf()), moved(room.tsdf());
   auto store = drv::BlockStore::create(::testing::TempDir());
   ASSERT_TRUE(store) << store.message();
   moved.setBacking(store->get());
-  auto observe = [&](int i, const Eigen::Isometry3d& T) {
-    return test::syntheticObservation(scene, cam, traj[static_cast<size_t>(i)].T_world_cam, i, &T);
-  };
+  auto observe = [&](int i, const Eigen::Isometry3d& T) { return room.observe(i, &T); };
   auto allOut = [&] {
     std::vector<int32_t> all(moved.blockCount());
     for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int32_t>(i);

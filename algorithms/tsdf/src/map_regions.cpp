@@ -56,10 +56,6 @@ std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks) {
   return regions;
 }
 
-bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks) {
-  return !map.blocksElsewhere().empty() && !regionBlocksElsewhere(map, region, region_blocks).empty();
-}
-
 std::vector<BlockKey> regionBlocksElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks) {
   std::vector<BlockKey> out;
   if (map.blocksElsewhere().empty()) return out;
@@ -72,6 +68,19 @@ std::vector<BlockKey> regionBlocksElsewhere(const TsdfMap& map, const RegionKey&
     }
   }
   return out;
+}
+
+size_t readBlocksInto(TsdfMap& local, const std::vector<BlockKey>& keys, const BlockReader& read) {
+  size_t unread = 0;
+  for (const BlockKey& k : keys) {
+    VoxelBlock b;
+    if (read && read(k, b)) {
+      local.block(static_cast<size_t>(local.findOrAllocate(k))) = b;
+    } else {
+      ++unread;
+    }
+  }
+  return unread;
 }
 
 TsdfMap copyRegions(const TsdfMap& map, const std::vector<RegionKey>& regions, int region_blocks) {

@@ -343,15 +343,9 @@ void Publisher::process(Work& work) {
       std::vector<MarkerMessage> markers;
       std::unordered_set<uint64_t> incomplete;
       for (const auto& [r, keys] : work.elsewhere) {
-        for (const alg::BlockKey& k : keys) {
-          alg::VoxelBlock b;
-          if (!params_.read_elsewhere(k, b)) {
-            incomplete.insert(packRegion(r));  // taken back since the update, or unreadable
-            break;
-          }
-          work.snapshot->block(static_cast<size_t>(work.snapshot->findOrAllocate(k))) = b;
-          blocks_read_elsewhere_.fetch_add(1, std::memory_order_relaxed);
-        }
+        const size_t unread = alg::readBlocksInto(*work.snapshot, keys, params_.read_elsewhere);
+        blocks_read_elsewhere_.fetch_add(keys.size() - unread, std::memory_order_relaxed);
+        if (unread > 0) incomplete.insert(packRegion(r));  // taken back since the update, or unreadable
       }
       for (const alg::RegionKey& r : work.regions) {
         if (incomplete.count(packRegion(r)) == 0) {

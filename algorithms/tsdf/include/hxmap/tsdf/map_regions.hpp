@@ -13,6 +13,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "hxmap/geometry/mesh.hpp"
@@ -34,13 +35,16 @@ std::vector<RegionKey> changedRegions(const TsdfMap& map, uint64_t revision, int
 
 /// Regions holding at least one block, sorted and unique.
 std::vector<RegionKey> occupiedRegions(const TsdfMap& map, int region_blocks);
-/// Whether a block region r's mesh reads (its blocks and the layer beyond
-/// its +x/+y/+z faces) is out of memory (a memory budget): meshed now, the
-/// region would lack that block's surface.
-bool regionPartlyElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks);
-/// Those blocks (the region's and the layer beyond its +x/+y/+z faces held
-/// out of memory), in z, y, x order.
+/// The blocks region r's mesh reads (its blocks and the layer beyond its
+/// +x/+y/+z faces) that are held out of memory (a memory budget): meshed
+/// without them, the region would lack their surface. In z, y, x order.
 std::vector<BlockKey> regionBlocksElsewhere(const TsdfMap& map, const RegionKey& region, int region_blocks);
+/// Copies a block held out of memory (a block store's peek); false when it
+/// no longer holds it.
+using BlockReader = std::function<bool(const BlockKey&, VoxelBlock&)>;
+/// Reads `keys` with `read` into `local` (a copy of regions to mesh);
+/// returns how many did not read.
+size_t readBlocksInto(TsdfMap& local, const std::vector<BlockKey>& keys, const BlockReader& read);
 
 /// A map holding copies of the blocks of `regions` and of the blocks just
 /// beyond their +x/+y/+z faces, which the regions' marching cubes read.

@@ -33,7 +33,6 @@
 
 #include <atomic>
 #include <cstdint>
-#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -88,7 +87,7 @@ struct PublisherParams {
   /// Under a memory budget: copies a block held out of memory (the block
   /// store's peek; called on hx-publish). Null: a changed region with such
   /// blocks waits until they are back in memory.
-  std::function<bool(const alg::BlockKey&, alg::VoxelBlock&)> read_elsewhere;
+  alg::BlockReader read_elsewhere;
 };
 
 
