@@ -741,11 +741,11 @@ std::string refineText(const Frontend& frontend, const RefineTally& refine) {
   std::string text = fmt::format(
       "refinement: {} ROI jobs ({} converged early, {} stopped by the time budget), {} voxels written back ({} "
       "completed where fusion had none)\n"
-      "  per job median {:.0f} ms (setup {:.1f} ms, write-back and field sampling {:.1f} ms), per iteration median "
+      "  per job median {:.0f} ms (setup {:.1f} ms, write-back{} {:.1f} ms), per iteration median "
       "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
       "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
       refine.jobs, refine.converged, refine.out_of_time, refine.voxels, refine.completed, pj.median, ps.median,
-      pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+      frontend.params().feedback.enabled ? " and field sampling for feedback" : "", pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
   size_t detail_bytes = 0;
   const auto details = frontend.details();
   for (const auto& d : details) detail_bytes += d->memoryBytes();
