@@ -745,7 +745,8 @@ std::string refineText(const Frontend& frontend, const RefineTally& refine) {
       "{:.2f} ms, memory per ROI up to {:.1f} MiB\n"
       "  field depth L1 on the ROIs' rays: {:.2f} mm as fused -> {:.2f} mm refined (mean over jobs)\n",
       refine.jobs, refine.converged, refine.out_of_time, refine.voxels, refine.completed, pj.median, ps.median,
-      frontend.params().feedback.enabled ? " and field sampling for feedback" : "", pr.median, pi.median, refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
+      frontend.params().feedback.enabled ? " and field sampling for feedback" : "", pr.median, pi.median,
+      refine.memory_mb_max, 1000 * refine.l1_before / n, 1000 * refine.l1_after / n);
   size_t detail_bytes = 0;
   const auto details = frontend.details();
   for (const auto& d : details) detail_bytes += d->memoryBytes();
