@@ -3,16 +3,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "hxmap/core/simd.hpp"
 #include "hxmap/implicit/activation.hpp"
 
 namespace hxmap::alg {
 
 namespace {
-
-using MapMat = Eigen::Map<Eigen::MatrixXf>;
-using ConstMapMat = Eigen::Map<const Eigen::MatrixXf>;
-using MapVec = Eigen::Map<Eigen::VectorXf>;
-using ConstMapVec = Eigen::Map<const Eigen::VectorXf>;
 
 // splitmix64: a deterministic stream for the initial weights.
 struct SplitMix {
@@ -28,37 +24,47 @@ struct SplitMix {
 
 }  // namespace
 
-void denseForward(const float* W, const float* b, int out, int in, const Eigen::MatrixXf& X, Eigen::MatrixXf& Y) {
-  const ConstMapMat Wm(W, out, in);
-  Y.noalias() = Wm * X;
-  Y.colwise() += ConstMapVec(b, out);
-}
-
-void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
-                   float* db, Eigen::MatrixXf* dX, int dx_rows) {
-  MapMat(dW, out, in).noalias() += dY * X.transpose();
-  MapVec(db, out) += dY.rowwise().sum();
-  if (dX) dX->noalias() = ConstMapMat(W, out, in).leftCols(dx_rows < 0 ? in : dx_rows).transpose() * dY;
-}
-
 namespace {
 
-/// Y = softplus(A) and S = softplus'(A).
-void activate(const Eigen::MatrixXf& A, Eigen::MatrixXf& Y, Eigen::MatrixXf& S) {
-  Y.resize(A.rows(), A.cols());
-  S.resize(A.rows(), A.cols());
-  softplusAndSlope(A.data(), Y.data(), S.data(), static_cast<size_t>(A.size()));
+/// Y = softplus(A) and S = softplus'(A), pads included (they stay finite).
+void activate(const PointRows& A, float* Y, PointRows& S) {
+  S.resize(A.rows(), A.points());
+  softplusAndSlope(A.data(), Y, S.data(), A.size());
+}
+
+// sin(pi q) and cos(pi q): q = n + r with n an integer and |r| <= 1/2,
+// then Taylor polynomials of pi r to the 11th and 12th power (within
+// 6e-8 absolute on [-pi/2, pi/2]); both change sign with n's parity.
+// Branch-free, so that a loop of them vectorizes.
+HXMAP_INLINE_IN_CLONES void sinCosPi(float q, float& sn, float& cs) {
+  const auto n = static_cast<int32_t>(q + (q >= 0.0f ? 0.5f : -0.5f));
+  const float x = static_cast<float>(M_PI) * (q - static_cast<float>(n));
+  const float x2 = x * x;
+  const float s =
+      x * (1.0f +
+           x2 * (-1.0f / 6 + x2 * (1.0f / 120 + x2 * (-1.0f / 5040 + x2 * (1.0f / 362880 + x2 * (-1.0f / 39916800))))));
+  const float c =
+      1.0f +
+      x2 * (-0.5f + x2 * (1.0f / 24 +
+                          x2 * (-1.0f / 720 + x2 * (1.0f / 40320 + x2 * (-1.0f / 3628800 + x2 * (1.0f / 479001600))))));
+  const float sign = (n & 1) ? -1.0f : 1.0f;
+  sn = sign * s;
+  cs = sign * c;
 }
 
 }  // namespace
 
-Corners locate(const GridLayout& grid, const Eigen::Vector3f& p) {
+namespace {
+
+// locate() with the cell's inverse given (one multiply per axis instead of
+// a division), inlined into the field's loops.
+inline Corners locateScaled(const GridLayout& grid, float inv_cell, const Eigen::Vector3f& p) {
   Corners c;
   int base[3];
   float frac[3];
   for (int a = 0; a < 3; ++a) {
     const int n = grid.nodes[a];
-    float q = (p[a] - grid.origin[a]) / grid.cell;
+    float q = (p[a] - grid.origin[a]) * inv_cell;
     q = std::clamp(q, 0.0f, static_cast<float>(n - 1));
     int i = std::min(static_cast<int>(q), std::max(n - 2, 0));
     base[a] = i;
@@ -73,6 +79,18 @@ Corners locate(const GridLayout& grid, const Eigen::Vector3f& p) {
     c.weight[k] = (dx ? frac[0] : 1 - frac[0]) * (dy ? frac[1] : 1 - frac[1]) * (dz ? frac[2] : 1 - frac[2]);
   }
   return c;
+}
+
+}  // namespace
+
+Corners locate(const GridLayout& grid, const Eigen::Vector3f& p) { return locateScaled(grid, 1.0f / grid.cell, p); }
+
+void TouchedNodes::begin(size_t node_count) {
+  nodes_.clear();
+  if (stamp_.size() != node_count || ++current_ == 0) {
+    stamp_.assign(node_count, 0);
+    current_ = 1;
+  }
 }
 
 NeuralField::NeuralField(const TsdfMap& map, const Eigen::Vector3i& voxel_min, const Eigen::Vector3i& voxel_count,
@@ -164,30 +182,43 @@ void NeuralField::initDecoder(uint64_t seed) {
   // W_2 and b_2 stay zero: the untrained field is the TSDF.
 }
 
-void NeuralField::encode(const Eigen::Vector3f& p, float* out) const {
-  const Eigen::Vector3f q = (p - center_).cwiseProduct(inv_half_extent_);
-  out[0] = q.x(), out[1] = q.y(), out[2] = q.z();
-  float* o = out + 3;
-  // The first octave from sin/cos, each next one by the double-angle rule.
-  float sn[3], cs[3];
+void NeuralField::encode(const Eigen::Matrix3Xf& points, PointRows& rows, int first) const {
+  // Per point: q (the local position in [-1, 1]), then per octave
+  // sin(pi 2^f q) and cos(pi 2^f q) of each axis; the first octave from
+  // sin/cos, each next one by the double-angle rule. Pads get q = 0.
+  const size_t n = static_cast<size_t>(points.cols()), stride = rows.stride();
+  const float* p = points.data();
   for (int a = 0; a < 3; ++a) {
-    sn[a] = std::sin(static_cast<float>(M_PI) * q[a]);
-    cs[a] = std::cos(static_cast<float>(M_PI) * q[a]);
+    float* q = rows.row(first + a);
+    const float c = center_[a], k = inv_half_extent_[a];
+    for (size_t j = 0; j < n; ++j) q[j] = (p[3 * j + static_cast<size_t>(a)] - c) * k;
+    for (size_t j = n; j < stride; ++j) q[j] = 0.0f;
   }
-  for (int f = 0; f < frequencies_; ++f) {
+  const int freqs = frequencies_;
+  dispatchAvx2Fma([&]() HXMAP_LAMBDA_INLINE_IN_CLONES {
     for (int a = 0; a < 3; ++a) {
-      *o++ = sn[a];
-      *o++ = cs[a];
-      const float s2 = 2.0f * sn[a] * cs[a];
-      cs[a] = (cs[a] - sn[a]) * (cs[a] + sn[a]);
-      sn[a] = s2;
+      const float* q = rows.row(first + a);
+      if (freqs == 0) continue;
+      float* sn = rows.row(first + 3 + 2 * a);
+      float* cs = rows.row(first + 3 + 2 * a + 1);
+      for (size_t j = 0; j < stride; ++j) sinCosPi(q[j], sn[j], cs[j]);
+      for (int f = 1; f < freqs; ++f) {
+        const float* s0 = rows.row(first + 3 + 6 * (f - 1) + 2 * a);
+        const float* c0 = rows.row(first + 3 + 6 * (f - 1) + 2 * a + 1);
+        float* s1 = rows.row(first + 3 + 6 * f + 2 * a);
+        float* c1 = rows.row(first + 3 + 6 * f + 2 * a + 1);
+        for (size_t j = 0; j < stride; ++j) {
+          s1[j] = 2.0f * s0[j] * c0[j];
+          c1[j] = (c0[j] - s0[j]) * (c0[j] + s0[j]);
+        }
+      }
     }
-  }
+  });
 }
 
 void NeuralField::forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m, Eigen::Matrix3Xf* rgb,
                           Cache* cache) const {
-  const Eigen::Index n = points.cols();
+  const auto n = static_cast<size_t>(points.cols());
   Cache local;
   Cache& c = cache ? *cache : local;
   const int in0 = inputWidth(), enc = encodingWidth();
@@ -195,13 +226,17 @@ void NeuralField::forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m
   c.Zin.resize(fuse_ + enc, n);
   const bool keep = cache != nullptr;
   if (keep) {
-    c.coarse.resize(static_cast<size_t>(n));
-    c.fine.resize(static_cast<size_t>(n));
+    c.coarse.resize(n);
+    c.fine.resize(n);
   }
+  const size_t stride = c.X.stride();
   const float* fine = params_.data() + fineOffset();
-  for (Eigen::Index j = 0; j < n; ++j) {
-    const Eigen::Vector3f p = points.col(j);
-    const Corners cc = locate(coarse_, p), fc = locate(fine_, p);
+  float* X[kCoarseChannels + 1];
+  for (int ch = 0; ch <= kCoarseChannels; ++ch) X[ch] = c.X.row(ch);
+  const float inv_coarse = 1.0f / coarse_.cell, inv_fine = 1.0f / fine_.cell;
+  for (size_t j = 0; j < n; ++j) {
+    const Eigen::Vector3f p = points.col(static_cast<Eigen::Index>(j));
+    const Corners cc = locateScaled(coarse_, inv_coarse, p), fc = locateScaled(fine_, inv_fine, p);
     float v[kCoarseChannels] = {0, 0, 0, 0, 0, 0, 0};
     for (int k = 0; k < 8; ++k) {
       const float* node = params_.data() + static_cast<size_t>(cc.node[k]) * kCoarseChannels;
@@ -209,56 +244,85 @@ void NeuralField::forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m
     }
     float s_fine = 0;
     for (int k = 0; k < 8; ++k) s_fine += fc.weight[k] * fine[fc.node[k]];
-    for (int ch = 0; ch < kCoarseChannels; ++ch) c.X(ch, j) = v[ch];
-    c.X(kCoarseChannels, j) = s_fine;
-    encode(p, c.Zin.col(j).data() + fuse_);
-    if (keep) c.coarse[static_cast<size_t>(j)] = cc, c.fine[static_cast<size_t>(j)] = fc;
+    for (int ch = 0; ch < kCoarseChannels; ++ch) X[ch][j] = v[ch];
+    X[kCoarseChannels][j] = s_fine;
+    if (keep) c.coarse[j] = cc, c.fine[j] = fc;
   }
-  denseForward(params_.data() + wf_, params_.data() + bf_, fuse_, in0, c.X, c.A0);
-  activate(c.A0, c.Z0, c.S0);
-  c.Zin.topRows(fuse_) = c.Z0;
-  denseForward(params_.data() + w1_, params_.data() + b1_, hidden_, fuse_ + enc, c.Zin, c.A1);
-  activate(c.A1, c.H, c.S1);
-  Eigen::MatrixXf O;
-  denseForward(params_.data() + w2_, params_.data() + b2_, 4, hidden_, c.H, O);
-  sdf_m = mu_ * (c.X.row(0) + c.X.row(kCoarseChannels) + O.row(0)).transpose();
-  if (rgb) *rgb = c.X.middleRows(4, 3) + O.bottomRows(3);
+  for (int ch = 0; ch <= kCoarseChannels; ++ch) std::fill(X[ch] + n, X[ch] + stride, 0.0f);
+  encode(points, c.Zin, fuse_);
+  denseForward(params_.data() + wf_, params_.data() + bf_, fuse_, in0, c.X, c.A);
+  activate(c.A, c.Zin.row(0), c.S0);  // z: the first fuse_ rows of the decoder's input
+  denseForward(params_.data() + w1_, params_.data() + b1_, hidden_, fuse_ + enc, c.Zin, c.A);
+  c.H.resize(hidden_, n);
+  activate(c.A, c.H.data(), c.S1);
+  denseForward(params_.data() + w2_, params_.data() + b2_, 4, hidden_, c.H, c.O);
+  sdf_m.resize(static_cast<Eigen::Index>(n));
+  const float* o0 = c.O.row(0);
+  for (size_t j = 0; j < n; ++j) sdf_m[static_cast<Eigen::Index>(j)] = mu_ * (X[0][j] + X[kCoarseChannels][j] + o0[j]);
+  if (rgb) {
+    rgb->resize(3, static_cast<Eigen::Index>(n));
+    for (int a = 0; a < 3; ++a) {
+      const float* tex = X[4 + a];
+      const float* o = c.O.row(1 + a);
+      for (size_t j = 0; j < n; ++j) (*rgb)(a, static_cast<Eigen::Index>(j)) = tex[j] + o[j];
+    }
+  }
 }
 
-void NeuralField::backward(const Cache& c, const Eigen::VectorXf& d_sdf, const Eigen::Matrix3Xf& d_rgb,
-                           std::vector<float>& grad, std::vector<int32_t>* touched) const {
-  const Eigen::Index n = c.X.cols();
+void NeuralField::backward(Cache& c, const Eigen::VectorXf& d_sdf, const Eigen::Matrix3Xf& d_rgb,
+                           std::vector<float>& grad, TouchedNodes* touched) const {
+  const size_t n = c.X.points();
   const int in0 = inputWidth(), enc = encodingWidth();
-  const bool color = d_rgb.cols() == n;
-  Eigen::MatrixXf dO = Eigen::MatrixXf::Zero(4, n);
-  dO.row(0) = mu_ * d_sdf.transpose();
-  if (color) dO.bottomRows(3) = d_rgb;
-  Eigen::MatrixXf dH, dZin, dX;
-  denseBackward(params_.data() + w2_, 4, hidden_, c.H, dO, grad.data() + w2_, grad.data() + b2_, &dH);
-  const Eigen::MatrixXf dA1 = dH.cwiseProduct(c.S1);
+  const bool color = d_rgb.cols() == static_cast<Eigen::Index>(n);
+  c.dO.resize(4, n);
+  c.dO.setZero();  // the pads stay zero: they add nothing to any sum
+  for (size_t j = 0; j < n; ++j) c.dO.row(0)[j] = mu_ * d_sdf[static_cast<Eigen::Index>(j)];
+  if (color) {
+    for (int a = 0; a < 3; ++a) {
+      float* row = c.dO.row(1 + a);
+      for (size_t j = 0; j < n; ++j) row[j] = d_rgb(a, static_cast<Eigen::Index>(j));
+    }
+  }
+  denseBackward(params_.data() + w2_, 4, hidden_, c.H, c.dO, grad.data() + w2_, grad.data() + b2_, &c.dH);
+  {  // dA1 = dH * softplus'(A1), in place
+    float* dh = c.dH.data();
+    const float* s1 = c.S1.data();
+    for (size_t i = 0; i < c.dH.size(); ++i) dh[i] *= s1[i];
+  }
   // The encoding has no parameters: only z's rows of the input gradient.
-  denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, dA1, grad.data() + w1_, grad.data() + b1_, &dZin,
+  denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, c.dH, grad.data() + w1_, grad.data() + b1_, &c.dZ,
                 fuse_);
-  const Eigen::MatrixXf dA0 = dZin.cwiseProduct(c.S0);
-  denseBackward(params_.data() + wf_, fuse_, in0, c.X, dA0, grad.data() + wf_, grad.data() + bf_, &dX);
-  dX.row(0) += mu_ * d_sdf.transpose();
-  dX.row(kCoarseChannels) += mu_ * d_sdf.transpose();
-  if (color) dX.middleRows(4, 3) += d_rgb;
+  {
+    float* dz = c.dZ.data();
+    const float* s0 = c.S0.data();
+    for (size_t i = 0; i < c.dZ.size(); ++i) dz[i] *= s0[i];
+  }
+  denseBackward(params_.data() + wf_, fuse_, in0, c.X, c.dZ, grad.data() + wf_, grad.data() + bf_, &c.dX);
+  const float* dX[kCoarseChannels + 1];
+  for (int ch = 0; ch <= kCoarseChannels; ++ch) dX[ch] = c.dX.row(ch);
 
   float* g_fine = grad.data() + fineOffset();
   const auto fine_base = static_cast<int32_t>(coarse_.nodeCount());
-  for (Eigen::Index j = 0; j < n; ++j) {
-    const Corners& cc = c.coarse[static_cast<size_t>(j)];
-    const Corners& fc = c.fine[static_cast<size_t>(j)];
+  for (size_t j = 0; j < n; ++j) {
+    const Corners& cc = c.coarse[j];
+    const Corners& fc = c.fine[j];
+    const float ds = mu_ * d_sdf[static_cast<Eigen::Index>(j)];
+    float g[kCoarseChannels + 1];
+    for (int ch = 0; ch <= kCoarseChannels; ++ch) g[ch] = dX[ch][j];
+    g[0] += ds;
+    g[kCoarseChannels] += ds;
+    if (color) {
+      for (int a = 0; a < 3; ++a) g[4 + a] += d_rgb(a, static_cast<Eigen::Index>(j));
+    }
     for (int k = 0; k < 8; ++k) {
       float* node = grad.data() + static_cast<size_t>(cc.node[k]) * kCoarseChannels;
-      for (int ch = 0; ch < kCoarseChannels; ++ch) node[ch] += cc.weight[k] * dX(ch, j);
-      g_fine[fc.node[k]] += fc.weight[k] * dX(kCoarseChannels, j);
+      for (int ch = 0; ch < kCoarseChannels; ++ch) node[ch] += cc.weight[k] * g[ch];
+      g_fine[fc.node[k]] += fc.weight[k] * g[kCoarseChannels];
     }
     if (touched) {
       for (int k = 0; k < 8; ++k) {
-        touched->push_back(cc.node[k]);
-        touched->push_back(fine_base + fc.node[k]);
+        touched->add(cc.node[k]);
+        touched->add(fine_base + fc.node[k]);
       }
     }
   }

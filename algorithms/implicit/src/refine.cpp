@@ -71,11 +71,10 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
   grad_.assign(np, 0.0f);
   m_.assign(np, 0.0f);
   v_.assign(np, 0.0f);
-  node_stamp_.assign(field_.coarseGrid().nodeCount() + field_.fineGrid().nodeCount(), 0);
   seen_.assign(field_.coarseGrid().nodeCount(), 0);
   stats_.rays = rays_.size();
   stats_.parameters = np;
-  stats_.memory_bytes = 4 * np * sizeof(float) + node_stamp_.size() * sizeof(uint32_t) + seen_.size() +
+  stats_.memory_bytes = 4 * np * sizeof(float) + field_.nodeCount() * sizeof(uint32_t) + seen_.size() +
                         rays_.size() * sizeof(TrainingRay) +
                         snapshot_weight_.size() * (3 * sizeof(float) + sizeof(Eigen::Vector3f));
   const Eigen::Vector3i nv = field_.voxelCount();
@@ -224,8 +223,8 @@ RenderBatch RoiRefiner::renderRays(const std::vector<int32_t>& which, Rendering&
   ImplicitParams p = params_;
   p.regularizer_points = 0;
   uint64_t rng = 1;  // unused: no jitter, no random rays or points
-  RenderBatch b = sampleBatch(field_, rays_, which, p, false, rng);
-  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering);
+  RenderBatch b = sampleBatch(field_, rays_, which, p, false, rng, nullptr, &cache_);
+  evaluateLoss(field_, rays_, b, p, nullptr, nullptr, &rendering, nullptr, &cache_);
   return b;
 }
 
@@ -251,7 +250,7 @@ void RoiRefiner::markSeen(const RenderBatch& batch) {
     for (int k = 0; k < N; ++k) {
       const size_t j = i * static_cast<size_t>(N) + static_cast<size_t>(k);
       if (rendering_.transmittance[j] < kSeenTransmittance) break;
-      const Corners c = locate(field_.coarseGrid(), r.origin + batch.t[j] * r.dir);
+      const Corners& c = cache_.coarse[j];  // the sample's, from the batch's forward pass
       for (int q = 0; q < 8; ++q) {
         if (c.weight[q] > 0.0f) seen_[static_cast<size_t>(c.node[q])] |= mark;
       }
@@ -273,9 +272,9 @@ bool RoiRefiner::iterate(int n) {
   }
   for (int it = 0; it < n && !finished_; ++it) {
     enterPhase(probe_, RefinePhase::kSample);
-    const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_, probe_);
-    touched_.clear();
-    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_, &rendering_, probe_);
+    const RenderBatch batch = sampleBatch(field_, rays_, {}, params_, true, rng_, probe_, &cache_);
+    touched_.begin(field_.nodeCount());
+    const LossTerms L = evaluateLoss(field_, rays_, batch, params_, &grad_, &touched_, &rendering_, probe_, &cache_);
     enterPhase(probe_, RefinePhase::kBookkeeping);
     markSeen(batch);
     for (Cell& c : cells_) {
@@ -294,26 +293,27 @@ bool RoiRefiner::iterate(int n) {
     const int t = ++stats_.iterations;
     const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(t)),
                 c2 = 1.0f - std::pow(kBeta2, static_cast<float>(t));
-    auto adam = [&](size_t i, float lr) {
+    // P -= lr m_hat / (sqrt(v_hat) + eps), m_hat = m / c1, v_hat = v / c2:
+    // the bias corrections folded into two factors.
+    const float inv_sqrt_c2 = 1.0f / std::sqrt(c2);
+    auto adam = [&](size_t i, float step) {
       const float g = grad_[i];
       m_[i] = kBeta1 * m_[i] + (1.0f - kBeta1) * g;
       v_[i] = kBeta2 * v_[i] + (1.0f - kBeta2) * g * g;
-      P[i] -= lr * (m_[i] / c1) / (std::sqrt(v_[i] / c2) + kEps);
+      P[i] -= step * m_[i] / (std::sqrt(v_[i]) * inv_sqrt_c2 + kEps);
       grad_[i] = 0.0f;
     };
     enterPhase(probe_, RefinePhase::kOptimizer);
-    const auto lr_grid = static_cast<float>(params_.learning_rate_grid);
-    const auto lr_mlp = static_cast<float>(params_.learning_rate_mlp);
-    for (int32_t node : touched_) {  // lazy: only the grid nodes this batch touched
-      if (node_stamp_[static_cast<size_t>(node)] == static_cast<uint32_t>(t)) continue;
-      node_stamp_[static_cast<size_t>(node)] = static_cast<uint32_t>(t);
+    const auto step_grid = static_cast<float>(params_.learning_rate_grid) / c1;
+    const auto step_mlp = static_cast<float>(params_.learning_rate_mlp) / c1;
+    for (int32_t node : touched_.nodes()) {  // lazy: only the grid nodes this batch touched
       if (static_cast<size_t>(node) < coarse_nodes) {
-        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * cc + ch, lr_grid);
+        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * cc + ch, step_grid);
       } else {
-        adam(field_.fineOffset() + (static_cast<size_t>(node) - coarse_nodes), lr_grid);
+        adam(field_.fineOffset() + (static_cast<size_t>(node) - coarse_nodes), step_grid);
       }
     }
-    for (size_t i = grid_end; i < P.size(); ++i) adam(i, lr_mlp);
+    for (size_t i = grid_end; i < P.size(); ++i) adam(i, step_mlp);
     enterPhase(probe_, RefinePhase::kBookkeeping);
 
     const double prev = smoothed_loss_.empty() ? L.total : smoothed_loss_.back();

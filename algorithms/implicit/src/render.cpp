@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "hxmap/implicit/activation.hpp"
+
 namespace hxmap::alg {
 
 namespace {
@@ -39,8 +41,6 @@ inline float huber(float r, float delta) {
   return a <= delta ? 0.5f * r * r : delta * (a - 0.5f * delta);
 }
 inline float huberGrad(float r, float delta) { return std::abs(r) <= delta ? r : (r > 0 ? delta : -delta); }
-inline float logSigmoid(float x) { return x < -20.0f ? x : -std::log1p(std::exp(-x)); }
-inline float sigmoidNeg(float x) { return 1.0f / (1.0f + std::exp(x)); }  // sigmoid(-x)
 
 void stratified(float a, float b, int n, bool jitter, uint64_t& rng, float* out) {
   const float step = (b - a) / static_cast<float>(n);
@@ -161,7 +161,9 @@ std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframe
 }
 
 std::vector<float> sphereTrace(const NeuralField& field, const std::vector<TrainingRay>& rays,
-                               const std::vector<int32_t>& which, int max_steps) {
+                               const std::vector<int32_t>& which, int max_steps, NeuralField::Cache* scratch) {
+  NeuralField::Cache local;
+  NeuralField::Cache& cache = scratch ? *scratch : local;
   const size_t n = which.size();
   std::vector<float> hit(n, -1.0f), t(n), s_prev(n);
   std::vector<size_t> active;
@@ -174,7 +176,7 @@ std::vector<float> sphereTrace(const NeuralField& field, const std::vector<Train
     t[i] = r.t_in;
     pts.col(static_cast<Eigen::Index>(i)) = r.origin + r.t_in * r.dir;
   }
-  field.forward(pts, s, nullptr, nullptr);
+  field.forward(pts, s, nullptr, &cache);
   for (size_t i = 0; i < n; ++i) {
     s_prev[i] = s[static_cast<Eigen::Index>(i)];
     if (s_prev[i] > 0.0f) active.push_back(i);  // entering inside the surface: no front face here
@@ -196,7 +198,7 @@ std::vector<float> sphereTrace(const NeuralField& field, const std::vector<Train
     }
     if (m == 0) break;
     pts.conservativeResize(3, static_cast<Eigen::Index>(m));
-    field.forward(pts, s, nullptr, nullptr);
+    field.forward(pts, s, nullptr, &cache);
     for (size_t k = 0; k < m; ++k) {
       const size_t i = eval[k];
       const float sk = s[static_cast<Eigen::Index>(k)];
@@ -214,7 +216,8 @@ std::vector<float> sphereTrace(const NeuralField& field, const std::vector<Train
 }
 
 RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>& rays, std::vector<int32_t> which,
-                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe) {
+                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe,
+                        NeuralField::Cache* scratch) {
   RenderBatch b;
   if (rays.empty()) return b;
   if (which.empty()) {
@@ -242,7 +245,7 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
   b.samples = N;
   b.t.resize(b.rays.size() * static_cast<size_t>(N));
   enterPhase(probe, RefinePhase::kTrace);
-  const std::vector<float> hit = sphereTrace(field, rays, b.rays, params.sphere_trace_steps);
+  const std::vector<float> hit = sphereTrace(field, rays, b.rays, params.sphere_trace_steps, scratch);
   enterPhase(probe, RefinePhase::kSample);
   const float band = static_cast<float>(params.sample_band_voxels) * field.voxelSize();
   std::vector<size_t> with_hit;
@@ -289,8 +292,8 @@ RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>
 }
 
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
-                       const ImplicitParams& params, std::vector<float>* grad, std::vector<int32_t>* touched,
-                       Rendering* rendering, RefineProbe* probe) {
+                       const ImplicitParams& params, std::vector<float>* grad, TouchedNodes* touched,
+                       Rendering* rendering, RefineProbe* probe, NeuralField::Cache* cache) {
   LossTerms L;
   const size_t R = batch.rays.size(), P = batch.reg_points.size();
   const int N = batch.samples;
@@ -314,11 +317,12 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
       pts.col(static_cast<Eigen::Index>(n_samples + 6 * p + 2 * a + 1)) = batch.reg_points[p] - e;
     }
   }
-  NeuralField::Cache cache;
+  NeuralField::Cache local;
+  NeuralField::Cache& c = cache ? *cache : local;
   Eigen::VectorXf s;
   Eigen::Matrix3Xf rgb;
   enterPhase(probe, RefinePhase::kForward);
-  field.forward(pts, s, &rgb, grad ? &cache : nullptr);
+  field.forward(pts, s, &rgb, &c);
   enterPhase(probe, RefinePhase::kRender);
 
   Eigen::VectorXf ds = Eigen::VectorXf::Zero(total);
@@ -332,18 +336,20 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
     rendering->depth.assign(R, 0.0f);
     rendering->transmittance.assign(n_samples, 0.0f);
   }
-  std::vector<float> x(static_cast<size_t>(N)), logphi(static_cast<size_t>(N)), alpha(static_cast<size_t>(N)),
-      ratio(static_cast<size_t>(N)), T(static_cast<size_t>(N)), w(static_cast<size_t>(N)), g(static_cast<size_t>(N));
+  // log Phi(x) = -softplus(-x) and Phi(-x) = softplus'(-x) of every
+  // sample's x = s / beta, in one vectorized pass.
+  std::vector<float> neg_x(n_samples), softplus_neg(n_samples), sigmoid_neg(n_samples);
+  for (size_t j = 0; j < n_samples; ++j) neg_x[j] = -s[static_cast<Eigen::Index>(j)] / beta;
+  softplusAndSlope(neg_x.data(), softplus_neg.data(), sigmoid_neg.data(), n_samples);
+  std::vector<float> logphi(static_cast<size_t>(N)), alpha(static_cast<size_t>(N)), ratio(static_cast<size_t>(N)),
+      T(static_cast<size_t>(N)), w(static_cast<size_t>(N)), g(static_cast<size_t>(N));
   std::vector<Eigen::Vector3f> cbar(static_cast<size_t>(N));
   double sum_photo = 0, sum_depth = 0;
   for (size_t i = 0; i < R; ++i) {
     const TrainingRay& r = rays[static_cast<size_t>(batch.rays[i])];
     const size_t j0 = i * static_cast<size_t>(N);
     const float* t = &batch.t[j0];
-    for (int k = 0; k < N; ++k) {
-      x[k] = s[static_cast<Eigen::Index>(j0 + k)] / beta;
-      logphi[k] = logSigmoid(x[k]);
-    }
+    for (int k = 0; k < N; ++k) logphi[k] = -softplus_neg[j0 + k];
     const int M = N - 1;  // sections
     float Ti = 1.0f, W = 0.0f;
     const float t_far = t[N - 1];
@@ -397,8 +403,8 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
       const float da = T[k] * (g[k] - after);
       after = alpha[k] * g[k] + (1.0f - alpha[k]) * after;
       if (alpha[k] <= 0.0f) continue;  // clamped: no gradient
-      ds[static_cast<Eigen::Index>(j0 + k)] += da * ratio[k] * sigmoidNeg(x[k]) / beta;
-      ds[static_cast<Eigen::Index>(j0 + k + 1)] -= da * ratio[k] * sigmoidNeg(x[k + 1]) / beta;
+      ds[static_cast<Eigen::Index>(j0 + k)] += da * ratio[k] * sigmoid_neg[j0 + k] / beta;
+      ds[static_cast<Eigen::Index>(j0 + k + 1)] -= da * ratio[k] * sigmoid_neg[j0 + k + 1] / beta;
     }
   }
   L.rays = static_cast<int>(R);
@@ -438,7 +444,7 @@ LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>&
             params.lambda_eikonal * L.eikonal;
   if (grad) {
     enterPhase(probe, RefinePhase::kBackward);
-    field.backward(cache, ds, drgb, *grad, touched);
+    field.backward(c, ds, drgb, *grad, touched);
   }
   return L;
 }

@@ -4,6 +4,7 @@
 // carries that into the map without a seam; bad keyframes are skipped.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -103,35 +104,50 @@ void perturbDecoder(NeuralField& f, uint64_t seed) {
   for (size_t i = f.fineOffset(); i < f.gridParameters(); ++i) P[i] += 0.05f * u(rng);
 }
 
+// Also through the kernels' remainders: 5 outputs (4 at a time), 5 inputs
+// (2 at a time), 13 points (8 lanes, padded to 16).
 TEST(ImplicitLayers, DenseLayerMatchesFiniteDifferences) {
-  const int out = 5, in = 4, n = 7;
+  const int out = 5, in = 5, n = 13;
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
   std::vector<float> W(out * in), b(out);
   for (auto& w : W) w = u(rng);
   for (auto& x : b) x = u(rng);
-  Eigen::MatrixXf X(in, n), Rw(out, n);
-  for (int i = 0; i < X.size(); ++i) X.data()[i] = u(rng);
-  for (int i = 0; i < Rw.size(); ++i) Rw.data()[i] = u(rng);
-  // L = sum(Rw .* softplus(W X + b))
-  auto activate = [](const Eigen::MatrixXf& A, Eigen::MatrixXf& Y, Eigen::MatrixXf& S) {
-    Y.resize(A.rows(), A.cols());
-    S.resize(A.rows(), A.cols());
-    softplusAndSlope(A.data(), Y.data(), S.data(), static_cast<size_t>(A.size()));
-  };
-  auto loss = [&](const std::vector<float>& Wv, const std::vector<float>& bv, const Eigen::MatrixXf& Xv) {
-    Eigen::MatrixXf A, Y, S;
+  PointRows X, Rw;
+  X.resize(in, n);
+  X.setZero();
+  Rw.resize(out, n);
+  Rw.setZero();
+  for (int r = 0; r < in; ++r)
+    for (int j = 0; j < n; ++j) X.row(r)[j] = u(rng);
+  for (int r = 0; r < out; ++r)
+    for (int j = 0; j < n; ++j) Rw.row(r)[j] = u(rng);
+  // L = sum(Rw .* softplus(W X + b)) over the points (not the pads)
+  auto loss = [&](const std::vector<float>& Wv, const std::vector<float>& bv, const PointRows& Xv) {
+    PointRows A, Y, S;
     denseForward(Wv.data(), bv.data(), out, in, Xv, A);
-    activate(A, Y, S);
-    return static_cast<double>(Y.cwiseProduct(Rw).sum());
+    Y.resize(out, n);
+    S.resize(out, n);
+    softplusAndSlope(A.data(), Y.data(), S.data(), A.size());
+    double sum = 0;
+    for (int r = 0; r < out; ++r)
+      for (int j = 0; j < n; ++j) sum += static_cast<double>(Y.row(r)[j]) * Rw.row(r)[j];
+    return sum;
   };
-  Eigen::MatrixXf A, Y, S;
+  PointRows A, Y, S;
   denseForward(W.data(), b.data(), out, in, X, A);
-  activate(A, Y, S);
-  const Eigen::MatrixXf dA = Rw.cwiseProduct(S);
+  ASSERT_EQ(A.rows(), out);
+  ASSERT_EQ(A.stride(), 16u);
+  Y.resize(out, n);
+  S.resize(out, n);
+  softplusAndSlope(A.data(), Y.data(), S.data(), A.size());
+  PointRows dA;
+  dA.resize(out, n);
+  for (size_t i = 0; i < dA.size(); ++i) dA.data()[i] = Rw.data()[i] * S.data()[i];  // pads: Rw is 0 there
   std::vector<float> dW(out * in, 0.0f), db(out, 0.0f);
-  Eigen::MatrixXf dX;
+  PointRows dX;
   denseBackward(W.data(), out, in, X, dA, dW.data(), db.data(), &dX);
+  ASSERT_EQ(dX.rows(), in);
   const float eps = 1e-2f;
   for (int i = 0; i < out * in; ++i) {
     auto Wp = W, Wm = W;
@@ -143,11 +159,19 @@ TEST(ImplicitLayers, DenseLayerMatchesFiniteDifferences) {
     bp[i] += eps, bm[i] -= eps;
     EXPECT_NEAR(db[i], (loss(W, bp, X) - loss(W, bm, X)) / (2 * eps), 2e-3) << "b " << i;
   }
-  for (int i = 0; i < X.size(); ++i) {
-    Eigen::MatrixXf Xp = X, Xm = X;
-    Xp.data()[i] += eps, Xm.data()[i] -= eps;
-    EXPECT_NEAR(dX.data()[i], (loss(W, b, Xp) - loss(W, b, Xm)) / (2 * eps), 2e-3) << "X " << i;
+  for (int r = 0; r < in; ++r) {
+    for (int j = 0; j < n; ++j) {
+      PointRows Xp = X, Xm = X;
+      Xp.row(r)[j] += eps, Xm.row(r)[j] -= eps;
+      EXPECT_NEAR(dX.row(r)[j], (loss(W, b, Xp) - loss(W, b, Xm)) / (2 * eps), 2e-3) << "X " << r << " " << j;
+    }
   }
+  // The input gradient of only the first rows is the same.
+  PointRows dX2;
+  denseBackward(W.data(), out, in, X, dA, dW.data(), db.data(), &dX2, 2);
+  ASSERT_EQ(dX2.rows(), 2);
+  for (int r = 0; r < 2; ++r)
+    for (int j = 0; j < n; ++j) EXPECT_FLOAT_EQ(dX2.row(r)[j], dX.row(r)[j]);
 }
 
 // The activation's polynomials against the definitions in double precision,
@@ -291,9 +315,21 @@ TEST_F(PlaneScene, FieldBackwardMatchesFiniteDifferences) {
   Eigen::Matrix3Xf c;
   f.forward(pts, s, &c, &cache);
   std::vector<float> grad(f.parameters().size(), 0.0f);
-  std::vector<int32_t> touched;
+  TouchedNodes touched;
+  touched.begin(f.nodeCount());
   f.backward(cache, a / kVoxel, b, grad, &touched);
-  EXPECT_FALSE(touched.empty());
+  ASSERT_FALSE(touched.nodes().empty());
+  // Each node once, and every node with a gradient listed.
+  std::vector<int32_t> listed = touched.nodes();
+  std::sort(listed.begin(), listed.end());
+  EXPECT_EQ(std::adjacent_find(listed.begin(), listed.end()), listed.end());
+  const auto coarse_nodes = static_cast<int32_t>(f.coarseGrid().nodeCount());
+  for (size_t i = 0; i < f.gridParameters(); ++i) {
+    if (grad[i] == 0.0f) continue;
+    const auto node = static_cast<int32_t>(i < f.fineOffset() ? i / NeuralField::kCoarseChannels
+                                                              : coarse_nodes + (i - f.fineOffset()));
+    EXPECT_TRUE(std::binary_search(listed.begin(), listed.end(), node)) << "parameter " << i;
+  }
   // Every parameter with a gradient, and a spread of the others.
   int checked = 0;
   auto& P = f.parameters();
@@ -327,7 +363,8 @@ TEST_F(PlaneScene, LossGradientMatchesFiniteDifferences) {
   for (int32_t i : batch.rays) free_rays += rays[static_cast<size_t>(i)].free_space;
   EXPECT_EQ(free_rays, 6);
   std::vector<float> grad(f.parameters().size(), 0.0f);
-  std::vector<int32_t> touched;
+  TouchedNodes touched;
+  touched.begin(f.nodeCount());
   const LossTerms L = evaluateLoss(f, rays, batch, p, &grad, &touched);
   EXPECT_GT(L.depth, 0.0);
   EXPECT_GT(L.photo, 0.0);

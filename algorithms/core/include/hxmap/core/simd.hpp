@@ -20,6 +20,16 @@
 
 #if defined(__x86_64__) && defined(__linux__) && !defined(HXMAP_SANITIZED) && !defined(HXMAP_NO_SIMD_CLONES)
 #define HXMAP_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+/// AVX2 with fused multiply-adds, for a function the caller picks at run
+/// time (hxmap::cpuHasAvx2Fma()). DESIGN: target_clones takes one feature
+/// per clone ("avx2" has no FMA) or an "arch=", and GCC inlines nothing
+/// that is not always_inline into an "arch=" clone (std::bit_cast stayed a
+/// call per element); target("avx2,fma") inlines what the baseline has.
+/// For the refinement's kernels, whose results may differ from the
+/// baseline's in the last bits. Code whose outputs must not depend on the
+/// CPU (the TSDF fusion kernel) stays with HXMAP_SIMD_CLONES.
+#define HXMAP_TARGET_AVX2_FMA __attribute__((target("avx2,fma")))
+#define HXMAP_HAVE_AVX2_FMA_TARGET 1
 /// For loops of __builtin_popcountll: the baseline x86-64 has no popcount
 /// instruction (a library call per word instead).
 #define HXMAP_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
@@ -41,3 +51,39 @@
 #define HXMAP_INLINE_IN_CLONES inline
 #define HXMAP_LAMBDA_INLINE_IN_CLONES
 #endif
+
+namespace hxmap {
+
+/// True where functions marked HXMAP_TARGET_AVX2_FMA may run (checked once).
+inline bool cpuHasAvx2Fma() {
+#if defined(HXMAP_HAVE_AVX2_FMA_TARGET)
+  static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return yes;
+#else
+  return false;
+#endif
+}
+
+#if defined(HXMAP_HAVE_AVX2_FMA_TARGET)
+template <typename Body>
+HXMAP_TARGET_AVX2_FMA void runForAvx2Fma(const Body& body) {
+  body();
+}
+#endif
+
+/// Runs body() compiled for AVX2 with FMA where the CPU has them, else for
+/// the baseline: body is a lambda marked HXMAP_LAMBDA_INLINE_IN_CLONES
+/// whose loops (and the HXMAP_INLINE_IN_CLONES helpers it calls) are
+/// inlined, so each copy is vectorized for its target.
+template <typename Body>
+void dispatchAvx2Fma(const Body& body) {
+#if defined(HXMAP_HAVE_AVX2_FMA_TARGET)
+  if (cpuHasAvx2Fma()) {
+    runForAvx2Fma(body);
+    return;
+  }
+#endif
+  body();
+}
+
+}  // namespace hxmap

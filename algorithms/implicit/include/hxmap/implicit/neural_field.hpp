@@ -27,18 +27,11 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "hxmap/implicit/dense.hpp"
 #include "hxmap/implicit/params.hpp"
 #include "hxmap/tsdf/tsdf_map.hpp"
 
 namespace hxmap::alg {
-
-/// Dense layer Y = W X + b on a batch (one column per point); W is
-/// out x in, column-major, in a flat parameter vector.
-void denseForward(const float* W, const float* b, int out, int in, const Eigen::MatrixXf& X, Eigen::MatrixXf& Y);
-/// Accumulates dW and db, and sets dX (when not null) to the gradient of
-/// the first dx_rows inputs (all when negative).
-void denseBackward(const float* W, int out, int in, const Eigen::MatrixXf& X, const Eigen::MatrixXf& dY, float* dW,
-                   float* db, Eigen::MatrixXf* dX, int dx_rows = -1);
 
 /// A regular grid of nodes with `channels` values each, trilinearly
 /// interpolated. Node (i, j, k) sits at origin + (i, j, k) * cell.
@@ -74,6 +67,26 @@ struct Corners {
 };
 Corners locate(const GridLayout& grid, const Eigen::Vector3f& p);
 
+/// The grid nodes a backward pass touched, each listed once (a stamp per
+/// node, so a new set costs nothing to clear).
+class TouchedNodes {
+ public:
+  /// Starts a new, empty set over `node_count` nodes.
+  void begin(size_t node_count);
+  void add(int32_t node) {
+    uint32_t& s = stamp_[static_cast<size_t>(node)];
+    if (s == current_) return;
+    s = current_;
+    nodes_.push_back(node);
+  }
+  const std::vector<int32_t>& nodes() const { return nodes_; }
+
+ private:
+  std::vector<uint32_t> stamp_;
+  uint32_t current_ = 0;
+  std::vector<int32_t> nodes_;
+};
+
 class NeuralField {
  public:
   /// Channels of the coarse grid: sdf / mu, normal (3), rgb in [0, 1] (3).
@@ -97,40 +110,45 @@ class NeuralField {
   const std::vector<float>& parameters() const { return params_; }
   /// Parameters [0, gridParameters()) are grid values, the rest the decoder.
   size_t gridParameters() const { return coarse_.size() + fine_.size(); }
+  /// Grid nodes, coarse and fine.
+  size_t nodeCount() const { return coarse_.nodeCount() + fine_.nodeCount(); }
   const GridLayout& coarseGrid() const { return coarse_; }
   const GridLayout& fineGrid() const { return fine_; }
   size_t fineOffset() const { return coarse_.size(); }
   int inputWidth() const { return kCoarseChannels + 1; }
   int encodingWidth() const { return 3 + 6 * frequencies_; }
 
-  /// What backward needs from forward.
+  /// What backward needs from forward, and the buffers of both (kept
+  /// between calls: a job reuses one, so an iteration allocates nothing).
   struct Cache {
     std::vector<Corners> coarse, fine;
-    Eigen::MatrixXf X;       ///< grid features (inputWidth x n)
-    Eigen::MatrixXf A0, Z0;  ///< fuse pre-activation, z = softplus(A0)
-    Eigen::MatrixXf S0;      ///< softplus'(A0)
-    Eigen::MatrixXf Zin;     ///< [z; gamma(x)]
-    Eigen::MatrixXf A1;      ///< hidden pre-activation
-    Eigen::MatrixXf H, S1;   ///< softplus(A1), softplus'(A1)
+    PointRows X;               ///< grid features (inputWidth rows)
+    PointRows A;               ///< a layer's pre-activation (scratch)
+    PointRows S0;              ///< softplus'(fuse pre-activation)
+    PointRows Zin;             ///< [z; gamma(x)]: z = softplus(fuse pre-activation)
+    PointRows H, S1;           ///< softplus(hidden pre-activation), its slope
+    PointRows O;               ///< decoder output (4 rows)
+    PointRows dO, dH, dZ, dX;  ///< backward's gradients
   };
-
   /// s (meters) and c (rgb in [0, 1], unclamped) at each column of `points`.
-  /// `cache` (optional) keeps what backward needs.
+  /// `cache` (optional) keeps what backward needs; without one, a
+  /// temporary is used.
   void forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m, Eigen::Matrix3Xf* rgb, Cache* cache) const;
 
   /// Adds dL/dparameters to `grad` (size parameters()) for the upstream
   /// gradients dL/ds and dL/dc (d_rgb may be empty: no color loss), and
-  /// appends the grid nodes it touched to `touched` (duplicates possible;
+  /// adds the grid nodes it touched to `touched` (begun over nodeCount();
   /// coarse node n is n, fine node n is coarse.nodeCount() + n).
-  void backward(const Cache& cache, const Eigen::VectorXf& d_sdf, const Eigen::Matrix3Xf& d_rgb,
-                std::vector<float>& grad, std::vector<int32_t>* touched) const;
+  void backward(Cache& cache, const Eigen::VectorXf& d_sdf, const Eigen::Matrix3Xf& d_rgb, std::vector<float>& grad,
+                TouchedNodes* touched) const;
 
   /// Bytes of parameters (the optimizer keeps three more copies).
   size_t parameterBytes() const { return params_.size() * sizeof(float); }
 
  private:
   void initDecoder(uint64_t seed);
-  void encode(const Eigen::Vector3f& p, float* out) const;
+  /// gamma(x) of every point into rows first .. first + encodingWidth() - 1.
+  void encode(const Eigen::Matrix3Xf& points, PointRows& rows, int first) const;
 
   Eigen::Vector3i voxel_min_ = Eigen::Vector3i::Zero(), voxel_count_ = Eigen::Vector3i::Ones();
   float voxel_size_ = 0.02f, mu_ = 0.08f;

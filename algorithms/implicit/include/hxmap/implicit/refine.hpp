@@ -127,8 +127,7 @@ class RoiRefiner {
   std::vector<int32_t> eval_rays_;
   // Adam state.
   std::vector<float> grad_, m_, v_;
-  std::vector<uint32_t> node_stamp_;
-  std::vector<int32_t> touched_;
+  TouchedNodes touched_;
   /// Residuals of the TSDF's renderings against the keyframes, pooled per
   /// cell of kCellVoxels^3 voxels: how much of its error is bias.
   static constexpr int kCellVoxels = 4;
@@ -156,6 +155,10 @@ class RoiRefiner {
   std::vector<Cell> cells_;
   std::vector<uint8_t> seen_;  ///< per coarse node (voxel): a visible sample came near
   Rendering rendering_;
+  /// The field's buffers, reused by every rendering of the job (a job runs
+  /// on one thread at a time); after a training iteration they hold its
+  /// samples' grid corners, which markSeen reads.
+  mutable NeuralField::Cache cache_;
   uint64_t rng_;
   std::vector<double> smoothed_loss_;
   bool finished_ = false;

@@ -100,9 +100,10 @@ std::vector<TrainingRay> collectRays(const std::vector<KeyframeImages>& keyframe
 
 /// The first zero crossing of the field along each ray in [t_in, t_out]
 /// (sphere tracing, a sign change refined linearly); -1 when none, or when
-/// the ray enters the box inside the surface.
+/// the ray enters the box inside the surface. `scratch` (optional): the
+/// field's buffers, reused.
 std::vector<float> sphereTrace(const NeuralField& field, const std::vector<TrainingRay>& rays,
-                               const std::vector<int32_t>& which, int max_steps);
+                               const std::vector<int32_t>& which, int max_steps, NeuralField::Cache* scratch = nullptr);
 
 /// The samples of one iteration.
 struct RenderBatch {
@@ -116,8 +117,10 @@ struct RenderBatch {
 /// `which` rays (all candidate rays when empty: rays_per_iteration drawn at
 /// random), traced and sampled; `jitter` stratifies the samples randomly
 /// (training), else at stratum centers (evaluation). `rng` advances.
+/// `scratch` as for sphereTrace.
 RenderBatch sampleBatch(const NeuralField& field, const std::vector<TrainingRay>& rays, std::vector<int32_t> which,
-                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe = nullptr);
+                        const ImplicitParams& params, bool jitter, uint64_t& rng, RefineProbe* probe = nullptr,
+                        NeuralField::Cache* scratch = nullptr);
 
 struct LossTerms {
   double photo = 0, depth = 0, normal = 0, eikonal = 0;
@@ -132,11 +135,14 @@ struct Rendering {
 };
 
 /// Renders the batch and evaluates the loss. With `grad` (size of the
-/// field's parameters), adds dL/dparameters and lists touched grid nodes in
-/// `touched`. `rendering` (optional) receives depths and transmittances.
+/// field's parameters), adds dL/dparameters and adds the grid nodes it
+/// touched to `touched` (begun by the caller). `rendering` (optional) receives depths and transmittances.
+/// `cache` (optional): the field's buffers, reused; after the call it
+/// holds the forward pass of the batch's samples and regularizer points
+/// (samples first, in the batch's order).
 LossTerms evaluateLoss(const NeuralField& field, const std::vector<TrainingRay>& rays, const RenderBatch& batch,
                        const ImplicitParams& params, std::vector<float>* grad = nullptr,
-                       std::vector<int32_t>* touched = nullptr, Rendering* rendering = nullptr,
-                       RefineProbe* probe = nullptr);
+                       TouchedNodes* touched = nullptr, Rendering* rendering = nullptr, RefineProbe* probe = nullptr,
+                       NeuralField::Cache* cache = nullptr);
 
 }  // namespace hxmap::alg
