@@ -28,7 +28,7 @@ FieldSurface::FieldSurface(const NeuralField& field, float band_voxels, const st
         float s = 0;
         bool constrained = true;
         for (int k = 0; k < 8; ++k) {
-          s += c.weight[k] * cp[static_cast<size_t>(c.node[k]) * NeuralField::kCoarseChannels];
+          s += c.weight[k] * cp[static_cast<size_t>(c.node[k]) * NeuralField::kCoarseStride];
           if (seen && c.weight[k] > 0.0f && !(*seen)[static_cast<size_t>(c.node[k])]) constrained = false;
         }
         if (!constrained || std::abs(s * mu_) > band) continue;

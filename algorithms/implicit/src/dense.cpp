@@ -1,21 +1,12 @@
 #include "hxmap/implicit/dense.hpp"
 
 #include <algorithm>
-#include <cstring>
 
 #include "hxmap/core/simd.hpp"
 
 namespace hxmap::alg {
 
 namespace {
-
-// 8 points' values: one AVX2 register, or two SSE / NEON registers.
-using Lanes = float __attribute__((vector_size(4 * kPointLanes)));
-
-// (By reference: a vector returned by value changes the ABI with AVX.)
-HXMAP_INLINE_IN_CLONES void loadLanes(Lanes& v, const float* p) { std::memcpy(&v, p, sizeof v); }
-
-HXMAP_INLINE_IN_CLONES void storeLanes(float* p, const Lanes& v) { std::memcpy(p, &v, sizeof v); }
 
 HXMAP_INLINE_IN_CLONES float laneSum(const Lanes& v) {
   float s = 0.0f;

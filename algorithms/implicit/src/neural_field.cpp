@@ -108,7 +108,7 @@ NeuralField::NeuralField(const TsdfMap& map, const Eigen::Vector3i& voxel_min, c
   center_ = box_.center();
   inv_half_extent_ = (0.5f * (hi - lo)).cwiseMax(1e-6f).cwiseInverse();
 
-  coarse_ = GridLayout{lo, voxel_size_, voxel_count_, kCoarseChannels};
+  coarse_ = GridLayout{lo, voxel_size_, voxel_count_, kCoarseStride};
   const int f = std::max(1, params.fine_per_voxel);
   fine_ = GridLayout{lo, voxel_size_ / static_cast<float>(f), (voxel_count_ - Eigen::Vector3i::Ones()) * f +
                                                                   Eigen::Vector3i::Ones(), 1};
@@ -129,7 +129,7 @@ NeuralField::NeuralField(const TsdfMap& map, const Eigen::Vector3i& voxel_min, c
     for (int y = 0; y < ny; ++y) {
       for (int x = 0; x < nx; ++x) {
         const size_t n = (static_cast<size_t>(z) * ny + y) * nx + x;
-        float* v = &params_[n * kCoarseChannels];
+        float* v = &params_[n * kCoarseStride];
         Voxel vox;
         if (map.voxel(voxel_min_ + Eigen::Vector3i(x, y, z), vox) && vox.weight > 0.0f) {
           observed[n] = 1;
@@ -159,11 +159,11 @@ NeuralField::NeuralField(const TsdfMap& map, const Eigen::Vector3i& voxel_min, c
           if (!observed[n0]) n0 = n;
           if (!observed[n1]) n1 = n;
           const int span = (n1 != n ? 1 : 0) + (n0 != n ? 1 : 0);
-          if (span > 0) g[a] = (params_[n1 * kCoarseChannels] - params_[n0 * kCoarseChannels]) / static_cast<float>(span);
+          if (span > 0) g[a] = (params_[n1 * kCoarseStride] - params_[n0 * kCoarseStride]) / static_cast<float>(span);
         }
         const float len = g.norm();
         if (len > 1e-6f) {
-          for (int a = 0; a < 3; ++a) params_[n * kCoarseChannels + 1 + a] = g[a] / len;
+          for (int a = 0; a < 3; ++a) params_[n * kCoarseStride + 1 + a] = g[a] / len;
         }
       }
     }
@@ -234,20 +234,24 @@ void NeuralField::forward(const Eigen::Matrix3Xf& points, Eigen::VectorXf& sdf_m
   float* X[kCoarseChannels + 1];
   for (int ch = 0; ch <= kCoarseChannels; ++ch) X[ch] = c.X.row(ch);
   const float inv_coarse = 1.0f / coarse_.cell, inv_fine = 1.0f / fine_.cell;
-  for (size_t j = 0; j < n; ++j) {
-    const Eigen::Vector3f p = points.col(static_cast<Eigen::Index>(j));
-    const Corners cc = locateScaled(coarse_, inv_coarse, p), fc = locateScaled(fine_, inv_fine, p);
-    float v[kCoarseChannels] = {0, 0, 0, 0, 0, 0, 0};
-    for (int k = 0; k < 8; ++k) {
-      const float* node = params_.data() + static_cast<size_t>(cc.node[k]) * kCoarseChannels;
-      for (int ch = 0; ch < kCoarseChannels; ++ch) v[ch] += cc.weight[k] * node[ch];
+  const float* coarse = params_.data();
+  dispatchAvx2Fma([&]() HXMAP_LAMBDA_INLINE_IN_CLONES {
+    for (size_t j = 0; j < n; ++j) {
+      const Eigen::Vector3f p = points.col(static_cast<Eigen::Index>(j));
+      const Corners cc = locateScaled(coarse_, inv_coarse, p), fc = locateScaled(fine_, inv_fine, p);
+      Lanes v{};  // a coarse node's channels are one vector
+      for (int k = 0; k < 8; ++k) {
+        Lanes node;
+        loadLanes(node, coarse + static_cast<size_t>(cc.node[k]) * kCoarseStride);
+        v += cc.weight[k] * node;
+      }
+      float s_fine = 0;
+      for (int k = 0; k < 8; ++k) s_fine += fc.weight[k] * fine[fc.node[k]];
+      for (int ch = 0; ch < kCoarseChannels; ++ch) X[ch][j] = v[ch];
+      X[kCoarseChannels][j] = s_fine;
+      if (keep) c.coarse[j] = cc, c.fine[j] = fc;
     }
-    float s_fine = 0;
-    for (int k = 0; k < 8; ++k) s_fine += fc.weight[k] * fine[fc.node[k]];
-    for (int ch = 0; ch < kCoarseChannels; ++ch) X[ch][j] = v[ch];
-    X[kCoarseChannels][j] = s_fine;
-    if (keep) c.coarse[j] = cc, c.fine[j] = fc;
-  }
+  });
   for (int ch = 0; ch <= kCoarseChannels; ++ch) std::fill(X[ch] + n, X[ch] + stride, 0.0f);
   encode(points, c.Zin, fuse_);
   denseForward(params_.data() + wf_, params_.data() + bf_, fuse_, in0, c.X, c.A);
@@ -303,29 +307,34 @@ void NeuralField::backward(Cache& c, const Eigen::VectorXf& d_sdf, const Eigen::
 
   float* g_fine = grad.data() + fineOffset();
   const auto fine_base = static_cast<int32_t>(coarse_.nodeCount());
-  for (size_t j = 0; j < n; ++j) {
-    const Corners& cc = c.coarse[j];
-    const Corners& fc = c.fine[j];
-    const float ds = mu_ * d_sdf[static_cast<Eigen::Index>(j)];
-    float g[kCoarseChannels + 1];
-    for (int ch = 0; ch <= kCoarseChannels; ++ch) g[ch] = dX[ch][j];
-    g[0] += ds;
-    g[kCoarseChannels] += ds;
-    if (color) {
-      for (int a = 0; a < 3; ++a) g[4 + a] += d_rgb(a, static_cast<Eigen::Index>(j));
-    }
-    for (int k = 0; k < 8; ++k) {
-      float* node = grad.data() + static_cast<size_t>(cc.node[k]) * kCoarseChannels;
-      for (int ch = 0; ch < kCoarseChannels; ++ch) node[ch] += cc.weight[k] * g[ch];
-      g_fine[fc.node[k]] += fc.weight[k] * g[kCoarseChannels];
-    }
-    if (touched) {
+  dispatchAvx2Fma([&]() HXMAP_LAMBDA_INLINE_IN_CLONES {
+    for (size_t j = 0; j < n; ++j) {
+      const Corners& cc = c.coarse[j];
+      const Corners& fc = c.fine[j];
+      const float ds = mu_ * d_sdf[static_cast<Eigen::Index>(j)];
+      Lanes g{};  // the coarse channels' gradients (the unused eighth stays 0)
+      for (int ch = 0; ch < kCoarseChannels; ++ch) g[ch] = dX[ch][j];
+      g[0] += ds;
+      if (color) {
+        for (int a = 0; a < 3; ++a) g[4 + a] += d_rgb(a, static_cast<Eigen::Index>(j));
+      }
+      const float g_s = dX[kCoarseChannels][j] + ds;
       for (int k = 0; k < 8; ++k) {
-        touched->add(cc.node[k]);
-        touched->add(fine_base + fc.node[k]);
+        float* q = grad.data() + static_cast<size_t>(cc.node[k]) * kCoarseStride;
+        Lanes node;
+        loadLanes(node, q);
+        node += cc.weight[k] * g;
+        storeLanes(q, node);
+        g_fine[fc.node[k]] += fc.weight[k] * g_s;
+      }
+      if (touched) {
+        for (int k = 0; k < 8; ++k) {
+          touched->add(cc.node[k]);
+          touched->add(fine_base + fc.node[k]);
+        }
       }
     }
-  }
+  });
 }
 
 }  // namespace hxmap::alg

@@ -31,7 +31,7 @@ RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
           snapshot_updates_[node] = v.stats.updates;
           // Where the voxel's nearest surface is (for the bias lookup): the
           // center moved by its distance against the normal.
-          const float* g = &field_.parameters()[node * NeuralField::kCoarseChannels];
+          const float* g = &field_.parameters()[node * NeuralField::kCoarseStride];
           surface_offset_[node] = -v.sdf_m * Eigen::Vector3f(g[1], g[2], g[3]);
         }
       }
@@ -308,7 +308,7 @@ bool RoiRefiner::iterate(int n) {
     const auto step_mlp = static_cast<float>(params_.learning_rate_mlp) / c1;
     for (int32_t node : touched_.nodes()) {  // lazy: only the grid nodes this batch touched
       if (static_cast<size_t>(node) < coarse_nodes) {
-        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * cc + ch, step_grid);
+        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * NeuralField::kCoarseStride + ch, step_grid);
       } else {
         adam(field_.fineOffset() + (static_cast<size_t>(node) - coarse_nodes), step_grid);
       }

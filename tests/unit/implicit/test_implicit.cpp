@@ -326,8 +326,8 @@ TEST_F(PlaneScene, FieldBackwardMatchesFiniteDifferences) {
   const auto coarse_nodes = static_cast<int32_t>(f.coarseGrid().nodeCount());
   for (size_t i = 0; i < f.gridParameters(); ++i) {
     if (grad[i] == 0.0f) continue;
-    const auto node = static_cast<int32_t>(i < f.fineOffset() ? i / NeuralField::kCoarseChannels
-                                                              : coarse_nodes + (i - f.fineOffset()));
+    const auto node =
+        static_cast<int32_t>(i < f.fineOffset() ? i / NeuralField::kCoarseStride : coarse_nodes + (i - f.fineOffset()));
     EXPECT_TRUE(std::binary_search(listed.begin(), listed.end(), node)) << "parameter " << i;
   }
   // Every parameter with a gradient, and a spread of the others.

@@ -14,12 +14,23 @@
 #pragma once
 
 #include <cstddef>
+#include <cstring>
 #include <vector>
+
+#include "hxmap/core/simd.hpp"
 
 namespace hxmap::alg {
 
 /// Points per vector lane group: rows are padded to a multiple of this.
 inline constexpr size_t kPointLanes = 8;
+
+/// 8 floats (8 points' values of a row, or 8 channels of a grid node): one
+/// AVX2 register, or two SSE / NEON registers (GCC / Clang vector
+/// extensions).
+using Lanes = float __attribute__((vector_size(4 * kPointLanes)));
+/// (By reference: a vector returned by value changes the ABI with AVX.)
+HXMAP_INLINE_IN_CLONES void loadLanes(Lanes& v, const float* p) { std::memcpy(&v, p, sizeof v); }
+HXMAP_INLINE_IN_CLONES void storeLanes(float* p, const Lanes& v) { std::memcpy(p, &v, sizeof v); }
 
 /// Rows of per-point values, each row contiguous and padded to a multiple
 /// of kPointLanes points. The pad holds finite values (the producers

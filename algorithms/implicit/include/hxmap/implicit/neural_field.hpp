@@ -91,6 +91,9 @@ class NeuralField {
  public:
   /// Channels of the coarse grid: sdf / mu, normal (3), rgb in [0, 1] (3).
   static constexpr int kCoarseChannels = 7;
+  /// Floats per coarse node: its channels and one unused (always 0, no
+  /// gradient), so that a node is one 8-lane vector in the field's loops.
+  static constexpr int kCoarseStride = 8;
 
   NeuralField() = default;
   /// Over the voxel centers voxel_min .. voxel_min + voxel_count - 1
