@@ -5,7 +5,29 @@
 #include <limits>
 #include <unordered_map>
 
+#include "hxmap/core/simd.hpp"
+
 namespace hxmap::alg {
+
+namespace {
+
+constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-8f;
+
+// Adam on parameters i .. i + N - 1: P -= lr m_hat / (sqrt(v_hat) + eps)
+// with m_hat = m / c1 and v_hat = v / c2, the bias corrections folded into
+// step = lr / c1 and inv_sqrt_c2 = 1 / sqrt(c2); the gradient is reset.
+template <int N>
+HXMAP_INLINE_IN_CLONES void adamStep(float* p, float* m, float* v, float* g, size_t i, float step, float inv_sqrt_c2) {
+  for (int k = 0; k < N; ++k) {
+    const size_t j = i + static_cast<size_t>(k);
+    m[j] = kBeta1 * m[j] + (1.0f - kBeta1) * g[j];
+    v[j] = kBeta2 * v[j] + (1.0f - kBeta2) * g[j] * g[j];
+    p[j] -= step * m[j] / (std::sqrt(v[j]) * inv_sqrt_c2 + kEps);
+    g[j] = 0.0f;
+  }
+}
+
+}  // namespace
 
 RoiRefiner::RoiRefiner(const TsdfMap& map, const Eigen::AlignedBox3f& box_world,
                        const std::vector<KeyframeImages>& keyframes, const ImplicitParams& params)
@@ -259,11 +281,9 @@ void RoiRefiner::markSeen(const RenderBatch& batch) {
 }
 
 bool RoiRefiner::iterate(int n) {
-  constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-8f;
   std::vector<float>& P = field_.parameters();
   const size_t grid_end = field_.gridParameters();
   const size_t coarse_nodes = field_.coarseGrid().nodeCount();
-  const int cc = NeuralField::kCoarseChannels;
   if (!finished_ && !prepared_) {  // a preparation step takes the place of this call's iterations
     enterPhase(probe_, RefinePhase::kPrepare);
     prepareStep();
@@ -293,27 +313,28 @@ bool RoiRefiner::iterate(int n) {
     const int t = ++stats_.iterations;
     const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(t)),
                 c2 = 1.0f - std::pow(kBeta2, static_cast<float>(t));
-    // P -= lr m_hat / (sqrt(v_hat) + eps), m_hat = m / c1, v_hat = v / c2:
-    // the bias corrections folded into two factors.
     const float inv_sqrt_c2 = 1.0f / std::sqrt(c2);
-    auto adam = [&](size_t i, float step) {
-      const float g = grad_[i];
-      m_[i] = kBeta1 * m_[i] + (1.0f - kBeta1) * g;
-      v_[i] = kBeta2 * v_[i] + (1.0f - kBeta2) * g * g;
-      P[i] -= step * m_[i] / (std::sqrt(v_[i]) * inv_sqrt_c2 + kEps);
-      grad_[i] = 0.0f;
-    };
     enterPhase(probe_, RefinePhase::kOptimizer);
     const auto step_grid = static_cast<float>(params_.learning_rate_grid) / c1;
     const auto step_mlp = static_cast<float>(params_.learning_rate_mlp) / c1;
-    for (int32_t node : touched_.nodes()) {  // lazy: only the grid nodes this batch touched
-      if (static_cast<size_t>(node) < coarse_nodes) {
-        for (int ch = 0; ch < cc; ++ch) adam(static_cast<size_t>(node) * NeuralField::kCoarseStride + ch, step_grid);
-      } else {
-        adam(field_.fineOffset() + (static_cast<size_t>(node) - coarse_nodes), step_grid);
+    float* p = P.data();
+    float* g = grad_.data();
+    float* m = m_.data();
+    float* v = v_.data();
+    const size_t fine = field_.fineOffset();
+    // A coarse node's 8 floats in one step (its unused eighth has no
+    // gradient and stays 0).
+    dispatchAvx2Fma([&]() HXMAP_LAMBDA_INLINE_IN_CLONES {
+      for (int32_t node : touched_.nodes()) {  // lazy: only the grid nodes this batch touched
+        if (static_cast<size_t>(node) < coarse_nodes) {
+          adamStep<NeuralField::kCoarseStride>(p, m, v, g, static_cast<size_t>(node) * NeuralField::kCoarseStride,
+                                               step_grid, inv_sqrt_c2);
+        } else {
+          adamStep<1>(p, m, v, g, fine + (static_cast<size_t>(node) - coarse_nodes), step_grid, inv_sqrt_c2);
+        }
       }
-    }
-    for (size_t i = grid_end; i < P.size(); ++i) adam(i, step_mlp);
+      for (size_t i = grid_end; i < P.size(); ++i) adamStep<1>(p, m, v, g, i, step_mlp, inv_sqrt_c2);
+    });
     enterPhase(probe_, RefinePhase::kBookkeeping);
 
     const double prev = smoothed_loss_.empty() ? L.total : smoothed_loss_.back();

@@ -8,12 +8,16 @@
 //
 // DESIGN: both come from the one exponential e^-|a| (in (0, 1], so nothing
 // overflows), and the forward pass keeps the slope for the backward pass,
-// which then needs no transcendental at all. The exponential and the
-// logarithm are polynomials (Cephes' single-precision expf and logf
-// minimax coefficients, with Cody-Waite range reduction) in plain loops
-// the compiler vectorizes (AVX2 or SSE on x86-64, NEON on arm64): libm's
-// scalar log1pf and expf were half of a refinement iteration's time.
-// Accuracy: within 4e-7 relative of the double-precision definitions, and
+// which then needs no transcendental at all. The exponential is a
+// polynomial (Cephes' single-precision expf coefficients, Cody-Waite range
+// reduction), log1p(e) the series of 2 atanh(e / (2 + e)) (e / (2 + e) is
+// at most 1/3: no range split), both evaluated by Estrin's scheme, and
+// 1 / (1 + e) for the slope and 1 / (2 + e) come from one division; plain
+// loops the compiler vectorizes (AVX2 with FMA where the CPU has them, SSE
+// otherwise on x86-64, NEON on arm64): libm's scalar log1pf and expf were
+// half of a refinement iteration's time.
+// Accuracy: within 4e-7 relative of the double-precision definitions
+// (worst seen 2.9e-7 for softplus, 1.9e-7 for the slope), and
 // within e^-86 (~4.5e-38) absolute where they fall below that (tested in
 // test_implicit).
 #pragma once
