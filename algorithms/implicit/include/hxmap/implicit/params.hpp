@@ -51,7 +51,7 @@ struct ImplicitParams {
   double learning_rate_mlp = 0.005;
   int iterations = 150;            ///< cap per job
   double time_budget_ms = 1500.0;  ///< cap per job (cooperative: checked between slices)
-  int slice_iterations = 1;        ///< iterations per scheduler slice (one is about 5-10 ms)
+  int slice_iterations = 1;        ///< iterations per scheduler slice (one is about 1-1.5 ms at 2 cm)
   /// Early stop: the smoothed loss improved by less than this share over
   /// the last `patience` iterations.
   double convergence_rel = 0.002;
