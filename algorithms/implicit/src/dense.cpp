@@ -56,8 +56,7 @@ HXMAP_INLINE_IN_CLONES void weightGradient(int out, int in, const float* X, cons
       for (size_t j = 0; j < stride; j += kPointLanes) {
         Lanes x[2] = {};
         for (int c = 0; c < ni; ++c) loadLanes(x[c], X + static_cast<size_t>(i + c) * stride + j);
-        for (int r = 0; r < 4; ++r) {
-          if (r >= no) break;
+        for (int r = 0; r < no; ++r) {
           Lanes y;
           loadLanes(y, dY + static_cast<size_t>(o + r) * stride + j);
           s[r][0] += y * x[0];

@@ -22,10 +22,6 @@ struct SplitMix {
   float uniform(float lo, float hi) { return lo + (hi - lo) * static_cast<float>(next() >> 40) * 0x1.0p-24f; }
 };
 
-}  // namespace
-
-namespace {
-
 /// Y = softplus(A) and S = softplus'(A), pads included (they stay finite).
 void activate(const PointRows& A, float* Y, PointRows& S) {
   S.resize(A.rows(), A.points());
@@ -52,9 +48,12 @@ HXMAP_INLINE_IN_CLONES void sinCosPi(float q, float& sn, float& cs) {
   cs = sign * c;
 }
 
-}  // namespace
-
-namespace {
+/// G *= S, element by element (a gradient through an activation's slope).
+void scaleBySlope(PointRows& G, const PointRows& S) {
+  float* g = G.data();
+  const float* s = S.data();
+  for (size_t i = 0; i < G.size(); ++i) g[i] *= s[i];
+}
 
 // locate() with the cell's inverse given (one multiply per axis instead of
 // a division), inlined into the field's loops.
@@ -288,19 +287,11 @@ void NeuralField::backward(Cache& c, const Eigen::VectorXf& d_sdf, const Eigen::
     }
   }
   denseBackward(params_.data() + w2_, 4, hidden_, c.H, c.dO, grad.data() + w2_, grad.data() + b2_, &c.dH);
-  {  // dA1 = dH * softplus'(A1), in place
-    float* dh = c.dH.data();
-    const float* s1 = c.S1.data();
-    for (size_t i = 0; i < c.dH.size(); ++i) dh[i] *= s1[i];
-  }
+  scaleBySlope(c.dH, c.S1);  // dA1 = dH * softplus'(A1)
   // The encoding has no parameters: only z's rows of the input gradient.
   denseBackward(params_.data() + w1_, hidden_, fuse_ + enc, c.Zin, c.dH, grad.data() + w1_, grad.data() + b1_, &c.dZ,
                 fuse_);
-  {
-    float* dz = c.dZ.data();
-    const float* s0 = c.S0.data();
-    for (size_t i = 0; i < c.dZ.size(); ++i) dz[i] *= s0[i];
-  }
+  scaleBySlope(c.dZ, c.S0);  // dA0 = dZ * softplus'(A0)
   denseBackward(params_.data() + wf_, fuse_, in0, c.X, c.dZ, grad.data() + wf_, grad.data() + bf_, &c.dX);
   const float* dX[kCoarseChannels + 1];
   for (int ch = 0; ch <= kCoarseChannels; ++ch) dX[ch] = c.dX.row(ch);
